@@ -1,0 +1,220 @@
+"""Segment geometry: the one implementation of every geometric query in truckrl.
+
+Everything in the world is a line segment ``[..., E, 4]`` holding ``(x0, y0, x1, y1)`` in world
+metres, with an optional boolean validity mask ``[..., E]`` (``False`` = padding, ignored).
+Leading dimensions broadcast, so the same call serves one scene or a batch of N scenes.
+
+Collision, placement distances, LiDAR and rendering all go through these functions.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+#: Tolerance on cross products [m^2] below which two directions count as parallel / a point as
+#: collinear. Scene coordinates are O(100 m), so float32 round-off on cross products is ~1e-5.
+PARALLEL_EPS = 1e-6
+
+
+def wrap_angle(angle: Tensor) -> Tensor:
+    """Wrap angles [rad] to ``[-pi, pi)``. Any shape."""
+    return torch.remainder(angle + math.pi, 2.0 * math.pi) - math.pi
+
+
+def cross2(ax: Tensor, ay: Tensor, bx: Tensor, by: Tensor) -> Tensor:
+    """z-component of the 2-D cross product ``a x b``. Broadcasts."""
+    return ax * by - ay * bx
+
+
+def rotate(xy: Tensor, angle: Tensor) -> Tensor:
+    """Rotate points ``xy [..., 2]`` counter-clockwise by ``angle [...]`` [rad] about the origin."""
+    c, s = torch.cos(angle), torch.sin(angle)
+    x, y = xy[..., 0], xy[..., 1]
+    return torch.stack((c * x - s * y, s * x + c * y), dim=-1)
+
+
+def to_local(xy: Tensor, origin: Tensor, heading: Tensor) -> Tensor:
+    """World points ``xy [..., P, 2]`` into the frame at ``origin [..., 2]``, ``heading [...]``."""
+    return rotate(xy - origin.unsqueeze(-2), -heading.unsqueeze(-1))
+
+
+def polygon_segments(points: Tensor) -> Tensor:
+    """Closed polygon ``points [..., P, 2]`` -> its ``P`` edges ``[..., P, 4]`` (last wraps to first)."""
+    return torch.cat((points, torch.roll(points, shifts=-1, dims=-2)), dim=-1)
+
+
+def rectangle_corners(
+    cx: Tensor, cy: Tensor, heading: Tensor, front: Tensor, rear: Tensor, half_width: Tensor
+) -> Tensor:
+    """Corners ``[..., 4, 2]`` (counter-clockwise) of an oriented rectangle.
+
+    The rectangle spans ``front`` metres ahead of and ``rear`` metres behind the reference point
+    ``(cx, cy)`` along ``heading`` [rad], and ``half_width`` metres to each side. All inputs ``[...]``.
+    """
+    c, s = torch.cos(heading), torch.sin(heading)
+    # front-right, front-left, rear-left, rear-right: counter-clockwise with y to the left
+    lx = torch.stack((front, front, -rear, -rear), dim=-1)
+    ly = torch.stack((-half_width, half_width, half_width, -half_width), dim=-1)
+    x = cx.unsqueeze(-1) + c.unsqueeze(-1) * lx - s.unsqueeze(-1) * ly
+    y = cy.unsqueeze(-1) + s.unsqueeze(-1) * lx + c.unsqueeze(-1) * ly
+    return torch.stack((x, y), dim=-1)
+
+
+def rectangle_segments(
+    cx: Tensor, cy: Tensor, heading: Tensor, front: Tensor, rear: Tensor, half_width: Tensor
+) -> Tensor:
+    """The 4 edges ``[..., 4, 4]`` of the rectangle of :func:`rectangle_corners`."""
+    return polygon_segments(rectangle_corners(cx, cy, heading, front, rear, half_width))
+
+
+def _on_segment(px: Tensor, py: Tensor, s: Tensor) -> Tensor:
+    """Whether a point known to be collinear with segment ``s [..., 4]`` lies within its extent."""
+    eps = 1e-6
+    return (
+        (px >= torch.minimum(s[..., 0], s[..., 2]) - eps)
+        & (px <= torch.maximum(s[..., 0], s[..., 2]) + eps)
+        & (py >= torch.minimum(s[..., 1], s[..., 3]) - eps)
+        & (py <= torch.maximum(s[..., 1], s[..., 3]) + eps)
+    )
+
+
+def segments_intersect(
+    a: Tensor, b: Tensor, a_mask: Tensor | None = None, b_mask: Tensor | None = None
+) -> Tensor:
+    """Pairwise closed-segment intersection test.
+
+    Args:
+        a: ``[..., A, 4]`` segments [m].
+        b: ``[..., B, 4]`` segments [m]; leading dims broadcast with ``a``'s.
+        a_mask: ``[..., A]`` validity (``False`` = padding) or ``None``.
+        b_mask: ``[..., B]`` validity or ``None``.
+
+    Returns:
+        ``[..., A, B]`` bool: the segments share at least one point (touching endpoints and
+        collinear overlaps count). Pairs involving padding are ``False``.
+    """
+    sa = a.unsqueeze(-2)  # [..., A, 1, 4]
+    sb = b.unsqueeze(-3)  # [..., 1, B, 4]
+    ax0, ay0, ax1, ay1 = sa.unbind(-1)
+    bx0, by0, bx1, by1 = sb.unbind(-1)
+    dax, day = ax1 - ax0, ay1 - ay0
+    dbx, dby = bx1 - bx0, by1 - by0
+    d1 = cross2(dbx, dby, ax0 - bx0, ay0 - by0)  # side of a0 relative to b
+    d2 = cross2(dbx, dby, ax1 - bx0, ay1 - by0)
+    d3 = cross2(dax, day, bx0 - ax0, by0 - ay0)  # side of b0 relative to a
+    d4 = cross2(dax, day, bx1 - ax0, by1 - ay0)
+    eps = PARALLEL_EPS
+    z1, z2, z3, z4 = (d.abs() <= eps for d in (d1, d2, d3, d4))
+    proper = ((d1 > eps) & (d2 < -eps) | (d1 < -eps) & (d2 > eps)) & (
+        (d3 > eps) & (d4 < -eps) | (d3 < -eps) & (d4 > eps)
+    )
+    touch = (
+        (z1 & _on_segment(ax0, ay0, sb))
+        | (z2 & _on_segment(ax1, ay1, sb))
+        | (z3 & _on_segment(bx0, by0, sa))
+        | (z4 & _on_segment(bx1, by1, sa))
+    )
+    hit = proper | touch
+    if a_mask is not None:
+        hit = hit & a_mask.unsqueeze(-1)
+    if b_mask is not None:
+        hit = hit & b_mask.unsqueeze(-2)
+    return hit
+
+
+def point_segment_distance(points: Tensor, segments: Tensor, mask: Tensor | None = None) -> Tensor:
+    """Euclidean distance from each point to each segment.
+
+    Args:
+        points: ``[..., P, 2]`` [m].
+        segments: ``[..., E, 4]`` [m]; leading dims broadcast with ``points``'.
+        mask: ``[..., E]`` validity or ``None``; padding gives ``+inf``.
+
+    Returns:
+        ``[..., P, E]`` distances [m]. Degenerate (zero-length) segments act as points.
+    """
+    p = points.unsqueeze(-2)  # [..., P, 1, 2]
+    s = segments.unsqueeze(-3)  # [..., 1, E, 4]
+    x0, y0, x1, y1 = s.unbind(-1)
+    dx, dy = x1 - x0, y1 - y0
+    px, py = p[..., 0], p[..., 1]
+    len2 = dx * dx + dy * dy
+    t = ((px - x0) * dx + (py - y0) * dy) / len2.clamp_min(1e-12)
+    t = t.clamp(0.0, 1.0)
+    d = torch.hypot(px - (x0 + t * dx), py - (y0 + t * dy))
+    if mask is not None:
+        d = d.masked_fill(~mask.unsqueeze(-2), math.inf)
+    return d
+
+
+def segment_segment_distance(
+    a: Tensor, b: Tensor, a_mask: Tensor | None = None, b_mask: Tensor | None = None
+) -> Tensor:
+    """Pairwise minimum distance between segments ``a [..., A, 4]`` and ``b [..., B, 4]``.
+
+    Returns:
+        ``[..., A, B]`` distances [m]: ``0`` where they intersect, else the smallest
+        endpoint-to-segment distance. Pairs involving padding are ``+inf``.
+    """
+    a_end = a.unflatten(-1, (2, 2))  # [..., A, 2, 2]
+    b_end = b.unflatten(-1, (2, 2))
+    # endpoints of a vs segments of b: [..., A*2, B] -> [..., A, B]
+    da = point_segment_distance(a_end.flatten(-3, -2), b)
+    da = da.unflatten(-2, (a.shape[-2], 2)).amin(-2)
+    db = point_segment_distance(b_end.flatten(-3, -2), a)
+    db = db.unflatten(-2, (b.shape[-2], 2)).amin(-2).transpose(-1, -2)
+    d = torch.minimum(da, db)
+    d = d.masked_fill(segments_intersect(a, b), 0.0)
+    if a_mask is not None:
+        d = d.masked_fill(~a_mask.unsqueeze(-1), math.inf)
+    if b_mask is not None:
+        d = d.masked_fill(~b_mask.unsqueeze(-2), math.inf)
+    return d
+
+
+def ray_segment_distance(
+    origin: Tensor, angles: Tensor, segments: Tensor, mask: Tensor | None = None
+) -> Tensor:
+    """Distance along each ray to each segment (dense ray x segment form).
+
+    Args:
+        origin: ``[..., 2]`` ray origin [m].
+        angles: ``[..., R]`` world ray directions [rad].
+        segments: ``[..., E, 4]`` [m].
+        mask: ``[..., E]`` validity or ``None``.
+
+    Returns:
+        ``[..., R, E]`` distance [m] from ``origin`` to the first point of each segment on each
+        ray, ``+inf`` where the ray misses or the segment is padding. A ray through a vertex hits
+        it; a segment collinear with a ray is hit at its nearest point at or ahead of the origin.
+    """
+    ox = origin[..., 0].unsqueeze(-1).unsqueeze(-1)  # [..., 1, 1]
+    oy = origin[..., 1].unsqueeze(-1).unsqueeze(-1)
+    dx = torch.cos(angles).unsqueeze(-1)  # [..., R, 1]
+    dy = torch.sin(angles).unsqueeze(-1)
+    s = segments.unsqueeze(-3)  # [..., 1, E, 4]
+    x0, y0, x1, y1 = s.unbind(-1)
+    ex, ey = x1 - x0, y1 - y0
+    wx, wy = x0 - ox, y0 - oy  # origin -> segment start
+    denom = cross2(dx, dy, ex, ey)
+    t = cross2(wx, wy, ex, ey) / denom  # distance along the ray
+    u = cross2(wx, wy, dx, dy) / denom  # position along the segment, 0..1
+    length = torch.hypot(ex, ey).clamp_min(1e-12)
+    # Parallel test scaled by segment length so it is a sine threshold, not an area threshold.
+    parallel = denom.abs() <= 1e-7 * length
+    hit = ~parallel & (t >= 0.0) & (u >= -1e-7) & (u <= 1.0 + 1e-7)
+    dist = torch.where(hit, t, torch.full_like(t, math.inf))
+    # Collinear segments: the ray runs along them; first contact is the nearest endpoint ahead,
+    # or the origin itself when it lies on the segment.
+    collinear = parallel & (cross2(wx, wy, dx, dy).abs() <= 1e-6 * length)
+    t0 = wx * dx + wy * dy
+    t1 = (x1 - ox) * dx + (y1 - oy) * dy
+    lo, hi = torch.minimum(t0, t1), torch.maximum(t0, t1)
+    col = torch.where(hi >= 0.0, lo.clamp_min(0.0), torch.full_like(lo, math.inf))
+    dist = torch.where(collinear, col, dist)
+    if mask is not None:
+        dist = dist.masked_fill(~mask.unsqueeze(-2), math.inf)
+    return dist

@@ -1,0 +1,219 @@
+"""Tractor-trailer geometry: per-episode randomized parameters and body contours.
+
+Conventions (see the paper's Fig. 1):
+
+* The tractor pose is its **rear-axle centre** ``(x, y)`` [m] and heading ``theta`` [rad].
+* ``phi`` [rad] is the articulation; the trailer heading is ``theta + phi``.
+* ``kingpin_offset`` is the paper's ``a_tk``: distance from the tractor rear axle to the kingpin,
+  **positive when the kingpin is behind the rear axle** (this is the sign that makes the paper's
+  ``phi_dot`` equation hold).
+* ``trailer_wheelbase`` is the paper's ``L_ka``: kingpin to trailer axle.
+* The cab is the front part of the tractor; its back wall sits ``cab_gap`` metres ahead of the
+  trailer's front face at ``phi = 0``. Jack-knife = trailer body touching the cab.
+
+Randomized parameters (uniform in ``[min, max]`` per episode; defaults in ``conf/env/default.yaml``):
+
+======================  ======  ==============  =============================================
+key                     unit    default range   meaning
+======================  ======  ==============  =============================================
+wheelbase               m       3.4 - 4.2       ``L_t``, front axle to rear axle
+front_overhang          m       1.2 - 1.6       front axle to front bumper
+rear_overhang           m       0.6 - 1.2       rear axle to tractor rear end
+tractor_width           m       2.3 - 2.55      tractor body width
+kingpin_offset          m       -0.5 - 0.3      ``a_tk``, rear axle to kingpin (+ = behind)
+cab_gap                 m       0.4 - 1.0       trailer front face to cab back wall at phi = 0
+trailer_wheelbase       m       6.0 - 11.0      ``L_ka``, kingpin to trailer axle
+trailer_front_overhang  m       0.9 - 1.6       kingpin to trailer front face
+trailer_rear_overhang   m       1.0 - 3.5       trailer axle to trailer rear end
+trailer_width           m       2.4 - 2.6       trailer body width
+max_steer               rad     0.55 - 0.70     steering angle limit ``|delta|``
+max_articulation        rad     1.2 - 1.4       articulation safety bound ``phi_max``
+max_speed               m/s     6.0 - 10.0      forward speed limit
+max_accel               m/s^2   1.5 - 3.0       acceleration limit
+max_jerk                m/s^3   2.0 - 5.0       jerk limit
+max_steer_rate          rad/s   0.4 - 0.8       steering rate limit
+max_steer_accel         rad/s^2 1.0 - 3.0       steering acceleration limit
+======================  ======  ==============  =============================================
+
+``min_speed`` [m/s] (default 0: forward driving only, as in the paper) is fixed, not randomized.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from truckrl.sim.geometry import rectangle_corners, rectangle_segments
+from truckrl.sim.validation import ConfigError, check_interval, check_range
+
+#: Randomized parameter keys, in the fixed order used by observations and docs.
+PARAM_KEYS: tuple[str, ...] = (
+    "wheelbase",
+    "front_overhang",
+    "rear_overhang",
+    "tractor_width",
+    "kingpin_offset",
+    "cab_gap",
+    "trailer_wheelbase",
+    "trailer_front_overhang",
+    "trailer_rear_overhang",
+    "trailer_width",
+    "max_steer",
+    "max_articulation",
+    "max_speed",
+    "max_accel",
+    "max_jerk",
+    "max_steer_rate",
+    "max_steer_accel",
+)
+
+
+@dataclass
+class VehicleConfig:
+    """Ranges ``(min, max)`` of the per-episode randomized truck parameters. Units: see module doc.
+
+    Typical articulated-truck dimensions (EU semi-trailer class); the paper randomizes nearly all
+    geometry per episode (Sec. "Kinematics of a tractor-trailer") without stating ranges.
+    """
+
+    wheelbase: tuple[float, float] = (3.4, 4.2)
+    front_overhang: tuple[float, float] = (1.2, 1.6)
+    rear_overhang: tuple[float, float] = (0.6, 1.2)
+    tractor_width: tuple[float, float] = (2.3, 2.55)
+    kingpin_offset: tuple[float, float] = (-0.5, 0.3)
+    cab_gap: tuple[float, float] = (0.4, 1.0)
+    trailer_wheelbase: tuple[float, float] = (6.0, 11.0)
+    trailer_front_overhang: tuple[float, float] = (0.9, 1.6)
+    trailer_rear_overhang: tuple[float, float] = (1.0, 3.5)
+    trailer_width: tuple[float, float] = (2.4, 2.6)
+    max_steer: tuple[float, float] = (0.55, 0.70)
+    max_articulation: tuple[float, float] = (1.2, 1.4)
+    max_speed: tuple[float, float] = (6.0, 10.0)
+    max_accel: tuple[float, float] = (1.5, 3.0)
+    max_jerk: tuple[float, float] = (2.0, 5.0)
+    max_steer_rate: tuple[float, float] = (0.4, 0.8)
+    max_steer_accel: tuple[float, float] = (1.0, 3.0)
+    min_speed: float = 0.0
+
+    def __post_init__(self) -> None:
+        positive = {
+            "wheelbase": 20.0,
+            "front_overhang": 5.0,
+            "rear_overhang": 5.0,
+            "tractor_width": 5.0,
+            "cab_gap": 5.0,
+            "trailer_wheelbase": 30.0,
+            "trailer_front_overhang": 5.0,
+            "trailer_rear_overhang": 10.0,
+            "trailer_width": 5.0,
+            "max_steer": 1.5,
+            "max_articulation": 3.1,
+            "max_speed": 50.0,
+            "max_accel": 20.0,
+            "max_jerk": 100.0,
+            "max_steer_rate": 10.0,
+            "max_steer_accel": 100.0,
+        }
+        for name, hi in positive.items():
+            lo_v, hi_v = check_interval(f"vehicle.{name}", getattr(self, name), 0.0, hi)
+            if lo_v <= 0.0:
+                raise ConfigError(f"vehicle.{name} = {[lo_v, hi_v]}: values must be in (0, {hi}]")
+            setattr(self, name, (lo_v, hi_v))
+        self.kingpin_offset = check_interval(
+            "vehicle.kingpin_offset", self.kingpin_offset, -3.0, 3.0
+        )
+        if self.kingpin_offset[1] >= self.rear_overhang[0]:
+            raise ConfigError(
+                f"vehicle.kingpin_offset max ({self.kingpin_offset[1]}) must be below "
+                f"vehicle.rear_overhang min ({self.rear_overhang[0]}): the kingpin sits on the tractor"
+            )
+        self.min_speed = check_range("vehicle.min_speed", self.min_speed, -50.0, self.max_speed[0])
+
+    def bounds(self) -> dict[str, tuple[float, float]]:
+        """``{key: (min, max)}`` for every randomized key in :data:`PARAM_KEYS`."""
+        return {k: getattr(self, k) for k in PARAM_KEYS}
+
+
+def sample_vehicle_params(
+    cfg: VehicleConfig, n: int, generator: torch.Generator | None = None, device=None
+) -> dict[str, Tensor]:
+    """Draw ``n`` trucks uniformly from the configured ranges.
+
+    Returns:
+        ``{key: Tensor[n]}`` for every key of :data:`PARAM_KEYS` (float32, units in module doc).
+    """
+    bounds = cfg.bounds()
+    u = torch.rand(len(PARAM_KEYS), n, generator=generator, device=device)
+    out = {}
+    for i, key in enumerate(PARAM_KEYS):
+        lo, hi = bounds[key]
+        out[key] = lo + (hi - lo) * u[i]
+    return out
+
+
+def normalized_params(params: dict[str, Tensor], cfg: VehicleConfig) -> Tensor:
+    """Parameters mapped affinely from their configured range to ``[-1, 1]``.
+
+    Returns:
+        ``[N, len(PARAM_KEYS)]``; a parameter with ``min == max`` maps to 0.
+    """
+    cols = []
+    for key, (lo, hi) in cfg.bounds().items():
+        span = hi - lo
+        cols.append(
+            (params[key] - 0.5 * (lo + hi)) * (2.0 / span) if span > 0 else params[key] * 0.0
+        )
+    return torch.stack(cols, dim=-1)
+
+
+def trailer_axle(pose: Tensor, params: dict[str, Tensor]) -> Tensor:
+    """Trailer axle centre ``[N, 2]`` [m] for ``pose [N, 4] = (x, y, theta, phi)``."""
+    x, y, theta, phi = pose.unbind(-1)
+    a, l_ka = params["kingpin_offset"], params["trailer_wheelbase"]
+    psi = theta + phi
+    kx = x - a * torch.cos(theta)
+    ky = y - a * torch.sin(theta)
+    return torch.stack((kx - l_ka * torch.cos(psi), ky - l_ka * torch.sin(psi)), dim=-1)
+
+
+def _bodies(pose: Tensor, params: dict[str, Tensor], fn):
+    x, y, theta, phi = pose.unbind(-1)
+    p = params
+    tractor_front = p["wheelbase"] + p["front_overhang"]
+    tractor = fn(x, y, theta, tractor_front, p["rear_overhang"], 0.5 * p["tractor_width"])
+    axle = trailer_axle(pose, p)
+    trailer = fn(
+        axle[..., 0],
+        axle[..., 1],
+        theta + phi,
+        p["trailer_wheelbase"] + p["trailer_front_overhang"],
+        p["trailer_rear_overhang"],
+        0.5 * p["trailer_width"],
+    )
+    # cab back wall: trailer front face + gap, measured forward of the rear axle
+    cab_back = -p["kingpin_offset"] + p["trailer_front_overhang"] + p["cab_gap"]
+    cab = fn(x, y, theta, tractor_front, -cab_back, 0.5 * p["tractor_width"])
+    return tractor, trailer, cab
+
+
+def truck_corners(pose: Tensor, params: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """Corners of tractor, trailer and cab, each ``[N, 4, 2]`` [m] (counter-clockwise)."""
+    return _bodies(pose, params, rectangle_corners)
+
+
+def truck_segments(pose: Tensor, params: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """Contours of tractor, trailer and cab as segments, each ``[N, 4, 4]`` [m].
+
+    ``pose [N, 4] = (x, y, theta, phi)``: tractor rear-axle centre, heading, articulation.
+    The tractor and trailer contours together are the vehicle outline used for collision and
+    rendering; the cab contour is the tractor part the trailer must never touch (jack-knife).
+    """
+    return _bodies(pose, params, rectangle_segments)
+
+
+def vehicle_outline(pose: Tensor, params: dict[str, Tensor]) -> Tensor:
+    """Tractor and trailer contours concatenated: ``[N, 8, 4]`` segments [m]."""
+    tractor, trailer, _ = truck_segments(pose, params)
+    return torch.cat((tractor, trailer), dim=-2)
