@@ -1,0 +1,227 @@
+"""TruckEnv: TorchRL spec checks, hand-computed rewards, resets, seeding, control modes."""
+
+import itertools
+import math
+
+import pytest
+import torch
+from torchrl.envs import ParallelEnv
+from torchrl.envs.utils import check_env_specs
+
+from truckrl.env import NUM_FEATURES, REWARD_TERMS, EnvConfig, TruckEnv
+from truckrl.sim.control import LATERAL_MODES, LONGITUDINAL_MODES
+from truckrl.sim.validation import ConfigError
+from truckrl.sim.vehicle import truck_corners
+
+
+def make(n=4, seed=0, **cfg):
+    return TruckEnv(num_envs=n, config=EnvConfig(**cfg), seed=seed)
+
+
+@pytest.mark.parametrize("n", [1, 7, 256])
+def test_check_env_specs(n):
+    env = make(n)
+    check_env_specs(env, seed=1)
+    td = env.reset()
+    assert td["observation"].shape == (n, NUM_FEATURES)
+    assert td["lidar"].shape == (n, env.config.lidar.num_beams)
+
+
+def _make_worker():
+    return TruckEnv(num_envs=8)
+
+
+def test_parallel_env_specs_and_distinct_workers():
+    penv = ParallelEnv(2, _make_worker)
+    try:
+        check_env_specs(penv, seed=3)
+        penv.set_seed(5)
+        td = penv.reset()
+        assert td.batch_size == (2, 8)
+        assert not torch.allclose(td["observation"][0], td["observation"][1])
+        penv.set_difficulty(1.5)
+        assert penv.difficulty == [1.5, 1.5]
+    finally:
+        penv.close()
+
+
+def _clear_scene(env, goal=(40.0, 0.0, 0.0)):
+    """Place every truck at the origin heading +x, at rest, with no obstacles and the given goal."""
+    s = env._state
+    n = env.num_envs
+    s["pose"] = torch.zeros(n, 4)
+    s["goal"] = torch.tensor(goal).expand(n, 3).clone()
+    s["mask"] = torch.zeros_like(s["mask"])
+    for k in ("speed", "accel", "jerk", "steer", "steer_rate", "steer_accel"):
+        s[k] = torch.zeros(n)
+    s.update(env._errors(s["pose"], s["goal"]))
+
+
+def test_progress_reward_driving_straight_at_goal():
+    env = make(3, control={"longitudinal": "speed", "lateral": "angle"})
+    env.reset()
+    _clear_scene(env, goal=(40.0, 0.0, 0.0))
+    vmax = env._state["params", "max_speed"].clone()
+    td = env.step(env.reset().set("action", torch.tensor([[1.0, 0.0]] * 3)))
+    nxt = td["next"]
+    # speed mode: +1 commands max_speed; one Euler step moves the rear axle v*dt toward the goal
+    expected = 0.05 * vmax * 0.1
+    torch.testing.assert_close(nxt["r_progress"][:, 0], expected, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(nxt["reward"][:, 0], expected, atol=1e-5, rtol=1e-5)
+    assert torch.all(nxt["r_tractor_heading"] == 0) and torch.all(nxt["r_trailer_heading"] == 0)
+    assert not nxt["done"].any()
+
+
+def test_heading_correction_reward():
+    env = make(2, control={"longitudinal": "accel", "lateral": "rate"})
+    td = env.reset()
+    _clear_scene(env, goal=(40.0, 0.0, 0.0))
+    env._state["pose"][:, 2] = 0.3  # tractor and trailer both 0.3 rad off the goal heading
+    env._state.update(env._errors(env._state["pose"], env._state["goal"]))
+    env._state["speed"] = torch.full((2,), 5.0)
+    td = env.step(td.set("action", torch.tensor([[0.0, -1.0]] * 2)))
+    p = env._state["pose"]
+    d_tractor = 0.3 - p[:, 2].abs()
+    d_trailer = 0.3 - (p[:, 2] + p[:, 3]).abs()
+    torch.testing.assert_close(td["next", "r_tractor_heading"][:, 0], 0.5 * d_tractor)
+    torch.testing.assert_close(td["next", "r_trailer_heading"][:, 0], 0.5 * d_trailer)
+
+
+def test_success_gives_plus_five_and_terminates():
+    env = make(2, control={"longitudinal": "speed", "lateral": "angle"})
+    td = env.reset()
+    _clear_scene(env, goal=(0.5, 0.0, 0.0))
+    env.set_difficulty(6.0)  # 0.47 m and 0.94 deg: the paper's hardest level
+    td = env.step(td.set("action", torch.tensor([[-1.0, 0.0]] * 2)))  # stay at rest
+    assert not td["next", "success"].any()
+    _clear_scene(env, goal=(0.3, 0.0, 0.0))
+    td = env.step(td.set("action", torch.tensor([[-1.0, 0.0]] * 2)))
+    nxt = td["next"]
+    assert nxt["success"].all() and nxt["terminated"].all() and nxt["done"].all()
+    assert torch.all(nxt["r_success"] == 5.0)
+    assert not nxt["truncated"].any()
+
+
+@pytest.mark.parametrize("kind", [0, 1])
+def test_collision_with_curb_or_obstacle(kind):
+    env = make(1, control={"longitudinal": "speed", "lateral": "angle"})
+    td = env.reset()
+    _clear_scene(env)
+    tractor, _, _ = truck_corners(env._state["pose"], env._state["params"])
+    bumper = float(tractor[0, :, 0].max())
+    wall = torch.tensor([bumper + 0.2, -5.0, bumper + 0.2, 5.0])  # 0.2 m ahead of the bumper
+    env._state["segments"][0, 0] = wall
+    env._state["mask"][0, 0] = True
+    env._state["kind"][0, 0] = kind
+    td = env.step(td.set("action", torch.tensor([[1.0, 0.0]])))  # >= 0.6 m per step
+    nxt = td["next"]
+    assert nxt["collision"].all() and nxt["terminated"].all()
+    assert float(nxt["r_collision"]) == -7.0
+    torch.testing.assert_close(
+        nxt["reward"], sum(nxt[k] for k in REWARD_TERMS), msg="terms must sum to the reward"
+    )
+
+
+def test_timeout_after_200_steps():
+    env = make(2, control={"longitudinal": "accel", "lateral": "rate"})
+    td = env.reset()
+    env.set_difficulty(20.0)  # no accidental success
+    action = torch.zeros(2, 2)  # at rest forever
+    for step in range(1, 201):
+        td = env.step(td.set("action", action))
+        nxt = td["next"]
+        if step < 200:
+            assert not nxt["done"].any(), step
+            td = nxt
+    assert nxt["truncated"].all() and not nxt["terminated"].any()
+    assert torch.all(nxt["r_timeout"] == -8.0)
+    assert torch.all(nxt["step_count"] == 200)
+
+
+def test_partial_reset_keeps_other_envs_bit_for_bit():
+    env = make(6, seed=4)
+    td = env.reset()
+    for _ in range(5):
+        td = env.step(td.set("action", env.action_spec.rand()))["next"]
+    before = env._state.clone()
+    reset = torch.tensor([False, True, False, False, True, False])
+    env.reset(td.set("_reset", reset[:, None]))
+    after = env._state
+    keep = ~reset
+    for key in before.keys(include_nested=True, leaves_only=True):
+        assert torch.equal(before[key][keep], after[key][keep]), key
+    assert torch.all(after["step_count"][reset] == 0)
+    assert not torch.equal(before["goal"][reset], after["goal"][reset])
+
+
+def test_same_seed_same_observations_different_seed_differs():
+    a = make(5, seed=123).reset()
+    b = make(5, seed=123).reset()
+    c = make(5, seed=124).reset()
+    assert torch.equal(a["observation"], b["observation"]) and torch.equal(a["lidar"], b["lidar"])
+    assert not torch.equal(a["observation"], c["observation"])
+
+
+@pytest.mark.parametrize("lon,lat", list(itertools.product(LONGITUDINAL_MODES, LATERAL_MODES)))
+def test_every_control_pairing_respects_bounds(lon, lat):
+    env = make(16, seed=7, control={"longitudinal": lon, "lateral": lat})
+    td = env.reset()
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(30):
+        action = torch.rand(16, 2, generator=gen) * 4 - 2  # outside [-1, 1] on purpose
+        td = env.step(td.set("action", action))["next"]
+        s, p = env._state, env._state["params"]
+        assert torch.all(s["speed"] <= p["max_speed"] + 1e-5)
+        assert torch.all(s["speed"] >= env.config.vehicle.min_speed - 1e-5)
+        assert torch.all(s["steer"].abs() <= p["max_steer"] + 1e-5)
+        assert torch.all(s["accel"].abs() <= p["max_accel"] + 1e-4)
+        assert torch.all(s["steer_rate"].abs() <= p["max_steer_rate"] + 1e-4)
+        assert torch.isfinite(td["observation"]).all()
+        td = env.reset(td) if td["done"].any() else td
+
+
+def test_nonfinite_actions_are_zeroed_and_flagged():
+    env = make(3)
+    td = env.reset()
+    action = torch.tensor([[math.nan, 0.5], [0.2, math.inf], [0.3, 0.1]])
+    td = env.step(td.set("action", action))["next"]
+    assert td["action_nonfinite"][:, 0].tolist() == [True, True, False]
+    for key in env._state.keys(include_nested=True, leaves_only=True):
+        v = env._state[key]
+        if v.is_floating_point():
+            assert torch.isfinite(v).all(), key
+    strict = make(2, nonfinite_action="error")
+    td = strict.reset()
+    with pytest.raises(ValueError, match="non-finite action"):
+        strict.step(td.set("action", torch.tensor([[0.0, 0.0], [math.nan, 0.0]])))
+
+
+def test_difficulty_sets_paper_tolerances():
+    env = make(2)
+    env.set_difficulty(6.0)
+    pos, ang = env.tolerances()
+    torch.testing.assert_close(pos, torch.full((2,), 30.0 / 64))  # paper: 0.47 m at difficulty 6
+    torch.testing.assert_close(ang, torch.full((2,), math.radians(60.0) / 64))
+    with pytest.raises(ConfigError, match="difficulty"):
+        env.set_difficulty(-1.0)
+
+
+def test_bad_config_names_the_field():
+    with pytest.raises(ConfigError, match="env.dt"):
+        EnvConfig(dt=0.0)
+    with pytest.raises(ConfigError, match="env.max_steps"):
+        EnvConfig(max_steps=0)
+    with pytest.raises(ConfigError, match="control.longitudinal"):
+        EnvConfig(control={"longitudinal": "warp", "lateral": "rate"})
+    with pytest.raises(ConfigError, match="unknown field"):
+        EnvConfig(reward={"progres": 1.0})
+    with pytest.raises(ConfigError, match="num_envs"):
+        TruckEnv(num_envs=0)
+
+
+def test_render_frame_is_rgb_image():
+    env = make(2)
+    env.reset()
+    img = env.render_frame(1)
+    assert img.ndim == 3 and img.shape[2] == 3 and img.dtype.name == "uint8"
+    assert img.std() > 0
