@@ -1,0 +1,242 @@
+"""PPO on TorchRL: GAE, the clipped loss, Adam with gradient clipping and the adaptive KL schedule.
+
+The paper trained with RSL-RL's PPO (section "PPO and Learning setup"); this module reproduces its
+update on TorchRL parts: :class:`~torchrl.objectives.value.GAE` for advantages,
+:class:`~torchrl.objectives.ClipPPOLoss` for the loss, advantages normalised over the whole batch,
+and RSL-RL's adaptive learning rate (:class:`AdaptiveKLSchedule`) driven by the analytic KL
+between the rollout policy and the current one, checked before every minibatch step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDictBase
+from torch import Tensor
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from truckrl.agent.network import HIDDEN_KEY, LIDAR_KEY, OBS_KEY, ActorCritic
+from truckrl.sim.validation import ConfigError, check_choice, check_range
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """PPO hyper-parameters (``conf/ppo/*.yaml``; ``paper`` holds the paper's numbers).
+
+    Attributes:
+        lr: initial Adam learning rate (paper: 1e-4).
+        lr_schedule: "adaptive" (RSL-RL KL rule) or "fixed".
+        desired_kl: KL target of the adaptive schedule (paper: 0.01).
+        lr_min, lr_max: clamp of the adaptive learning rate.
+        num_epochs: passes over each batch (paper: 8).
+        num_minibatches: minibatches per epoch (paper: 96); must divide the batch size.
+        gamma: discount (paper: 0.99).
+        lmbda: GAE lambda (paper: 0.95).
+        clip_epsilon: ratio clip (paper: 0.2).
+        entropy_coeff: entropy bonus weight (paper: 0.005).
+        value_coeff: critic loss weight (paper: 0.5).
+        max_grad_norm: gradient-norm clip (paper: 4.0).
+        clip_value: clip the value update to ``clip_epsilon`` around the rollout value (RSL-RL).
+        normalize_advantage: standardise advantages over the whole batch (RSL-RL).
+        loss_critic_type: "l2" (RSL-RL's squared error), "l1" or "smooth_l1".
+    """
+
+    lr: float = 1e-4  # paper
+    lr_schedule: str = "adaptive"  # paper: adaptive KL schedule
+    desired_kl: float = 0.01  # paper
+    lr_min: float = 1e-5
+    lr_max: float = 1e-2
+    num_epochs: int = 8  # paper
+    num_minibatches: int = 96  # paper
+    gamma: float = 0.99  # paper
+    lmbda: float = 0.95  # paper
+    clip_epsilon: float = 0.2  # paper
+    entropy_coeff: float = 0.005  # paper
+    value_coeff: float = 0.5  # paper
+    max_grad_norm: float = 4.0  # paper
+    clip_value: bool = True
+    normalize_advantage: bool = True
+    loss_critic_type: str = "l2"
+
+    def __post_init__(self) -> None:
+        check_range("ppo.lr", self.lr, 0.0, 1.0, lo_open=True)
+        check_choice("ppo.lr_schedule", self.lr_schedule, ("adaptive", "fixed"))
+        check_range("ppo.desired_kl", self.desired_kl, 0.0, 10.0, lo_open=True)
+        check_range("ppo.lr_min", self.lr_min, 0.0, 1.0, lo_open=True)
+        check_range("ppo.lr_max", self.lr_max, self.lr_min, 1.0)
+        if self.lr_schedule == "adaptive":
+            check_range("ppo.lr", self.lr, self.lr_min, self.lr_max)
+        check_range("ppo.num_epochs", self.num_epochs, 1, 1000)
+        check_range("ppo.num_minibatches", self.num_minibatches, 1, 1e7)
+        check_range("ppo.gamma", self.gamma, 0.0, 1.0)
+        check_range("ppo.lmbda", self.lmbda, 0.0, 1.0)
+        check_range("ppo.clip_epsilon", self.clip_epsilon, 0.0, 1.0, lo_open=True)
+        check_range("ppo.entropy_coeff", self.entropy_coeff, 0.0, 10.0)
+        check_range("ppo.value_coeff", self.value_coeff, 0.0, 100.0)
+        check_range("ppo.max_grad_norm", self.max_grad_norm, 0.0, 1e6, lo_open=True)
+        check_choice("ppo.loss_critic_type", self.loss_critic_type, ("l2", "l1", "smooth_l1"))
+
+    def check_batch(self, batch_size: int) -> int:
+        """Check ``num_minibatches`` divides ``batch_size`` frames; return the minibatch size."""
+        if batch_size % int(self.num_minibatches) != 0 or batch_size < self.num_minibatches:
+            raise ConfigError(
+                f"ppo.num_minibatches = {self.num_minibatches} must divide the batch of "
+                f"{batch_size} frames (collector.workers x env.num_envs x collector.steps_per_env)"
+            )
+        return batch_size // int(self.num_minibatches)
+
+
+class AdaptiveKLSchedule:
+    """RSL-RL's adaptive learning rate: keep the per-update KL near a target.
+
+    ``lr /= factor`` when ``kl > 2 * desired_kl``; ``lr *= factor`` when ``kl < desired_kl / 2``;
+    otherwise unchanged; always clamped to ``[lr_min, lr_max]``.
+    """
+
+    def __init__(
+        self,
+        lr: float,
+        desired_kl: float = 0.01,  # paper: KL target 0.01
+        lr_min: float = 1e-5,
+        lr_max: float = 1e-2,
+        factor: float = 1.5,  # RSL-RL
+    ) -> None:
+        self.lr = float(lr)
+        self.desired_kl = desired_kl
+        self.lr_min = lr_min
+        self.lr_max = lr_max
+        self.factor = factor
+
+    def step(self, kl: float) -> float:
+        """Update from one measured KL (a Python float) and return the new learning rate."""
+        if kl > 2.0 * self.desired_kl:
+            self.lr = self.lr / self.factor
+        elif kl < 0.5 * self.desired_kl:
+            self.lr = self.lr * self.factor
+        self.lr = min(max(self.lr, self.lr_min), self.lr_max)
+        return self.lr
+
+
+def gaussian_kl(loc0: Tensor, scale0: Tensor, loc1: Tensor, scale1: Tensor) -> Tensor:
+    """KL(N0 || N1) of diagonal Gaussians, summed over the last (action) dim.
+
+    Args:
+        loc0, scale0: ``[*B, A]`` old policy mean and std.
+        loc1, scale1: ``[*B, A]`` new policy mean and std.
+
+    Returns:
+        ``[*B]`` KL in nats.
+    """
+    kl = (
+        torch.log(scale1 / scale0)
+        + (scale0.square() + (loc0 - loc1).square()) / (2.0 * scale1.square())
+        - 0.5
+    )
+    return kl.sum(-1)
+
+
+class PPO:
+    """One PPO learner: call :meth:`update` with each collected batch.
+
+    Args:
+        ac: the actor-critic (its trunk is shared by actor and critic).
+        cfg: hyper-parameters.
+    """
+
+    def __init__(self, ac: ActorCritic, cfg: PPOConfig) -> None:
+        self.ac = ac
+        self.cfg = cfg
+        self.gae = GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=ac.critic, average_gae=False)
+        # The critic is the value head alone: the actor pass inside the loss already wrote a
+        # differentiable "hidden", so the shared trunk runs once per minibatch and still gets
+        # gradients from both losses.
+        self.loss = ClipPPOLoss(
+            ac.actor,
+            ac.value_head,
+            clip_epsilon=cfg.clip_epsilon,
+            entropy_coeff=cfg.entropy_coeff,
+            critic_coeff=cfg.value_coeff,
+            loss_critic_type=cfg.loss_critic_type,
+            normalize_advantage=False,
+            clip_value=cfg.clip_epsilon if cfg.clip_value else None,
+        )
+        self.optimizer = torch.optim.Adam(ac.model.parameters(), lr=cfg.lr)
+        self.schedule = (
+            AdaptiveKLSchedule(cfg.lr, cfg.desired_kl, cfg.lr_min, cfg.lr_max)
+            if cfg.lr_schedule == "adaptive"
+            else None
+        )
+
+    @property
+    def lr(self) -> float:
+        return float(self.optimizer.param_groups[0]["lr"])
+
+    def set_lr(self, lr: float) -> None:
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        if self.schedule is not None:
+            self.schedule.lr = lr
+
+    @torch.no_grad()
+    def compute_advantages(self, batch: TensorDictBase) -> TensorDictBase:
+        """Add "advantage", "value_target" and "state_value" to a ``[..., T]`` rollout (time last)."""
+        batch = batch.exclude(HIDDEN_KEY, ("next", HIDDEN_KEY))
+        self.gae(batch)
+        if self.cfg.normalize_advantage:
+            adv = batch["advantage"]
+            batch["advantage"] = (adv - adv.mean()) / (adv.std() + 1e-8)
+        return batch
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        """Run ``num_epochs`` x ``num_minibatches`` gradient steps on one rollout.
+
+        Args:
+            batch: collector output ``[..., T]`` with "observation", "lidar", "action", "loc",
+                "scale", "action_log_prob" and the ("next", ...) step entries.
+
+        Returns:
+            Means over all minibatches: "loss_objective", "loss_critic", "loss_entropy",
+            "entropy", "kl" (analytic, old || new), "kl_approx" (TorchRL's sample estimate),
+            "clip_fraction", "grad_norm"; plus "lr" (after the update) and "action_std".
+        """
+        batch = self.compute_advantages(batch).reshape(-1)
+        n = batch.numel()
+        mb_size = self.cfg.check_batch(n)
+        keys = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx")
+        keys += ("clip_fraction",)
+        sums = {k: torch.zeros((), device=batch.device) for k in (*keys, "kl", "grad_norm")}
+        params = list(self.ac.model.parameters())
+        steps = 0
+        for _ in range(self.cfg.num_epochs):
+            perm = torch.randperm(n, device=batch.device)
+            for idx in perm.split(mb_size):
+                mb = batch[idx]
+                with torch.no_grad():
+                    cur = self.ac.actor.get_dist_params(mb.select(OBS_KEY, LIDAR_KEY))
+                    kl = gaussian_kl(mb["loc"], mb["scale"], cur["loc"], cur["scale"]).mean()
+                if self.schedule is not None:
+                    self.set_lr(self.schedule.step(kl.item()))
+                out = self.loss(mb)
+                total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+                self.optimizer.zero_grad(set_to_none=True)
+                total.backward()
+                grad_norm = torch.nn.utils.clip_grad_norm_(params, self.cfg.max_grad_norm)
+                self.optimizer.step()
+                for k in keys:
+                    sums[k] += out[k].detach()
+                sums["kl"] += kl
+                sums["grad_norm"] += grad_norm.detach()
+                steps += 1
+        metrics = {k: v.item() / steps for k, v in sums.items()}
+        metrics["lr"] = self.lr
+        metrics["action_std"] = self.ac.action_std().mean().item()
+        return metrics
+
+    def state_dict(self) -> dict:
+        return {"optimizer": self.optimizer.state_dict(), "lr": self.lr}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.set_lr(float(state["lr"]))
