@@ -11,7 +11,7 @@ Conventions (see the paper's Fig. 1):
 * The cab is the front part of the tractor; its back wall sits ``cab_gap`` metres ahead of the
   trailer's front face at ``phi = 0``. Jack-knife = trailer body touching the cab.
 
-Randomized parameters (uniform in ``[min, max]`` per episode; defaults in ``conf/env/default.yaml``):
+Randomized parameters (uniform in ``[min, max]`` per episode; defaults in ``conf/env/vehicle/default.yaml``):
 
 ======================  ======  ==============  =============================================
 key                     unit    default range   meaning
@@ -36,16 +36,31 @@ max_steer_accel         rad/s^2 1.0 - 3.0       steering acceleration limit
 ======================  ======  ==============  =============================================
 
 ``min_speed`` [m/s] (default 0: forward driving only, as in the paper) is fixed, not randomized.
+
+Kinematics (:func:`kinematics_step`): kinematic bicycle for the tractor plus a trailer on a hitch,
+
+    theta_dot = v / L_t * tan(delta)
+    phi_dot   = -v / L_t * tan(delta) * (1 + a_tk / L_ka * cos(phi)) - v / L_ka * sin(phi)
+
+with ``v`` the rear-axle speed [m/s] and ``delta`` the steering angle [rad]. With ``a_tk``
+positive behind the rear axle this is exact no-slip hitch kinematics (the trailer axle moves
+along the trailer heading), not a small-angle approximation.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
-from truckrl.sim.geometry import rectangle_corners, rectangle_segments
+from truckrl.sim.geometry import (
+    rectangle_corners,
+    rectangle_segments,
+    segments_intersect,
+    wrap_angle,
+)
 from truckrl.sim.validation import ConfigError, check_interval, check_range
 
 #: Randomized parameter keys, in the fixed order used by observations and docs.
@@ -217,3 +232,117 @@ def vehicle_outline(pose: Tensor, params: dict[str, Tensor]) -> Tensor:
     """Tractor and trailer contours concatenated: ``[N, 8, 4]`` segments [m]."""
     tractor, trailer, _ = truck_segments(pose, params)
     return torch.cat((tractor, trailer), dim=-2)
+
+
+#: Margin [rad] under ``max_articulation`` at which the hitch counts as at its stop (jack-knife);
+#: covers float32 round-off of the clamp in :func:`kinematics_step`.
+ARTICULATION_STOP_EPS = 1e-6
+
+
+def check_dt(dt: float) -> float:
+    """Validate a time step ``dt`` [s] (finite, ``> 0``) and return it as float.
+
+    Raises:
+        ConfigError: naming ``dt``.
+    """
+    return check_range("dt", dt, 0.0, math.inf, lo_open=True, hi_open=True)
+
+
+def kinematics_step(
+    pose: Tensor,
+    speed: Tensor,
+    steer: Tensor,
+    params: dict[str, Tensor],
+    dt: float,
+    substeps: int = 1,
+) -> tuple[Tensor, Tensor]:
+    """Advance the tractor-trailer by ``dt`` with speed and steering held constant.
+
+    Explicit (forward) Euler on ``substeps`` equal sub-steps of ``dt / substeps``. Each
+    sub-step evaluates ``theta_dot`` and ``phi_dot`` at its start, moves the rear axle by the
+    body-frame displacement ``[v h, 0]`` rotated by the start heading, wraps ``theta`` and
+    ``phi`` to ``[-pi, pi)`` and clamps ``|phi| <= max_articulation``. ``substeps=1`` is the
+    paper's scheme (one Euler step per control step, paper: dt = 0.1 s); the global error is
+    first order, i.e. shrinks linearly with ``dt / substeps``.
+
+    Args:
+        pose: ``[N, 4]`` = ``(x [m], y [m], theta [rad], phi [rad])``, tractor rear-axle centre.
+        speed: ``[N]`` rear-axle speed ``v`` [m/s] (negative = reversing).
+        steer: ``[N]`` steering angle ``delta`` [rad], ``|delta| < pi / 2``.
+        params: per-env parameters ``{key: Tensor[N]}`` (uses ``wheelbase``,
+            ``kingpin_offset``, ``trailer_wheelbase``, ``max_articulation``).
+        dt: step [s], ``> 0``.
+        substeps: Euler sub-steps per ``dt``, ``>= 1``.
+
+    Returns:
+        ``(pose [N, 4], clamped [N] bool)``: the new pose and whether the articulation stop
+        was hit (``|phi|`` would have exceeded ``max_articulation``) in any sub-step.
+
+    Raises:
+        ConfigError: ``dt <= 0`` or ``substeps < 1``.
+    """
+    h = check_dt(dt)
+    if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
+        raise ConfigError(f"substeps = {substeps!r} must be an integer >= 1")
+    h /= substeps
+    l_t, a = params["wheelbase"], params["kingpin_offset"]
+    l_ka, phi_max = params["trailer_wheelbase"], params["max_articulation"]
+    yaw_rate = speed * torch.tan(steer) / l_t  # constant over the step: v and delta are held
+    x, y, theta, phi = pose.unbind(-1)
+    clamped = torch.zeros_like(phi, dtype=torch.bool)
+    for _ in range(substeps):
+        phi_rate = -yaw_rate * (1.0 + a / l_ka * torch.cos(phi)) - speed / l_ka * torch.sin(phi)
+        x = x + speed * h * torch.cos(theta)
+        y = y + speed * h * torch.sin(theta)
+        theta = wrap_angle(theta + yaw_rate * h)
+        phi = wrap_angle(phi + phi_rate * h)
+        clamped = clamped | (phi.abs() > phi_max)
+        phi = torch.minimum(torch.maximum(phi, -phi_max), phi_max)
+    return torch.stack((x, y, theta, phi), dim=-1), clamped
+
+
+def jackknifed(pose: Tensor, params: dict[str, Tensor]) -> Tensor:
+    """Whether the trailer is jack-knifed.
+
+    True where the trailer contour touches the cab contour (:func:`truck_segments`), or the
+    articulation is at its stop: ``|phi| >= max_articulation - ARTICULATION_STOP_EPS``.
+
+    Args:
+        pose: ``[N, 4]`` = ``(x, y, theta, phi)`` [m, m, rad, rad].
+        params: per-env parameters ``{key: Tensor[N]}``.
+
+    Returns:
+        ``[N]`` bool.
+    """
+    _, trailer, cab = truck_segments(pose, params)
+    touching = segments_intersect(trailer, cab).flatten(-2).any(-1)
+    at_stop = pose[..., 3].abs() >= params["max_articulation"] - ARTICULATION_STOP_EPS
+    return touching | at_stop
+
+
+def steady_state_articulation(steer: Tensor, params: dict[str, Tensor]) -> Tensor:
+    """Articulation [rad] the trailer settles to under a constant steering angle (forward driving).
+
+    With ``k = tan(delta) / L_t`` [1/m] the equilibria of ``phi_dot`` (independent of ``v``) solve
+
+        L_ka k + a k cos(phi) + sin(phi) = 0.
+
+    Write ``sin(phi) + a k cos(phi) = R sin(phi + beta)`` with ``R = sqrt(1 + (a k)^2)`` and
+    ``beta = atan(a k)``; then ``sin(phi + beta) = -L_ka k / R``, whose two solutions are
+    ``phi_1 = asin(-L_ka k / R) - beta`` and ``phi_2 = pi - asin(-L_ka k / R) - beta``. Since
+    ``d(phi_dot)/d(phi) = -(v / L_ka) R cos(phi + beta)``, the equilibrium with
+    ``cos(phi + beta) > 0`` is stable for ``v > 0``: that is ``phi_1``, returned here (in reverse,
+    ``v < 0``, the same point is the unstable one). It exists only when
+    ``|k| <= 1 / sqrt(L_ka^2 - a^2)``, i.e. the kingpin's turning radius is at least ``L_ka``;
+    beyond that no steady state exists (the trailer folds until the stop) and the result is NaN.
+
+    Args:
+        steer: steering angle ``delta`` [rad], shape ``[...]`` broadcasting with the params.
+        params: uses ``wheelbase``, ``kingpin_offset``, ``trailer_wheelbase``.
+
+    Returns:
+        ``phi_ss`` [rad] in ``(-pi, pi)``, NaN where no steady state exists.
+    """
+    k = torch.tan(steer) / params["wheelbase"]
+    ak = params["kingpin_offset"] * k
+    return torch.asin(-params["trailer_wheelbase"] * k / torch.sqrt(1.0 + ak * ak)) - torch.atan(ak)
