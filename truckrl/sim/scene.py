@@ -1,0 +1,617 @@
+"""Batched random scenes: one straight road or two crossing roads, parked obstacles, start and goal.
+
+Every scene of a batch is drawn independently; all randomness comes from one ``torch.Generator``
+(same seed -> same scenes, on its device). Everything is emitted as line segments
+``[N, E, 4]`` with a validity mask, ``E = 8 + 4 * max_obstacles`` fixed by the config.
+
+Layout (all lengths in metres, angles in radians)
+-------------------------------------------------
+* **Roads.** Both roads pass through the scene centre ``P`` (uniform in a square of half-side
+  ``center_jitter`` around the origin) and span ``[-half_extent, half_extent]`` along their
+  direction ``d_r``; their curbs are the lines at ``+-width_r / 2`` along the left normal ``n_r``.
+  Road 1 (crossing scenes only) is road 0 turned by the crossing angle. The curb ends are open.
+* **Curbs of a crossing.** The four curb-curb crossing points are the corners of the intersection
+  parallelogram (``intersection``, counter-clockwise). Each curb line is split at its two
+  corners and the part inside the other road is dropped, so the 8 curb segments meet exactly at
+  the 4 corners. A straight road has 2 curb segments; the other 6 slots are padding.
+* **Arms.** A crossing has four arms: road ``r`` on side ``sigma = +-1`` of ``P``. ``e_r`` is the
+  extent of the parallelogram along ``d_r`` (largest ``|(corner - P) . d_r|``).
+
+Start and goal (the reachability rule)
+--------------------------------------
+Poses are the tractor rear-axle centre with articulation 0, driving on the right-hand half of the
+road: the curb-side edge of the wider body sits ``shoulder_gap`` metres from the curb (the truck
+stays in its half of the road and fully on it).
+
+* Straight road: start and goal drive the same way; the goal lies *ahead* of the start, and
+  their straight-line distance is drawn from ``goal_distance``.
+* Crossing: the start lies on a random arm heading *towards* ``P`` (approach arm); the goal lies on
+  one of the three other arms heading *away* from ``P`` (straight on, or a turn either way; never
+  a U-turn). Both footprints (tractor and trailer) stay at least ``pose_intersection_margin``
+  beyond the parallelogram along their road. The goal's distance along its arm is solved so that
+  the start-goal distance is a draw from ``goal_distance``; draws that fall outside the arm are
+  resampled for ``rounds`` rounds, and a crossing scene still without a valid pair becomes a
+  straight-road scene (valid by construction).
+* Every start and goal rear axle stays ``curb_reach`` metres (the LiDAR range) inside the curb ends.
+
+Obstacles (the solvability rule)
+--------------------------------
+Up to ``max_obstacles`` rectangles parked along the curbs, aligned with their road (``mask``
+tells which exist). Slot ``k`` sits on curb line ``k mod C`` (``C = 4`` curb lines at a crossing,
+2 on a straight road), alternating between the two arms of the line. Slots are
+``obstacle_spacing`` long and start ``obstacle_intersection_clearance`` beyond the parallelogram
+along their road (at ``P`` on a straight road); each holds one obstacle with
+``obstacle_min_gap / 2`` to spare at both ends and is occupied with ``obstacle_keep_prob``. An
+obstacle lies ``obstacle_curb_offset`` (> 0: it never touches a curb) inside its curb, so it
+occupies only the curb strip of depth ``obstacle_curb_offset[1] + obstacle_width[1]``.
+
+What holds by construction, given the checks of :class:`SceneConfig`:
+
+* a free central corridor at least ``min_free_corridor`` wide on every road;
+* at least ``obstacle_intersection_clearance`` to the intersection, hence (times the sine of the
+  crossing angle) at least ``max(obstacle_pose_clearance, obstacle_min_gap)`` to everything on the
+  other road; at least ``obstacle_min_gap`` between obstacles;
+* at least ``min_free_corridor / 2 >= obstacle_pose_clearance`` to a start or goal on the other half
+  of the same road.
+
+What is drawn by rejection (the interval tests along the road; an obstacle still failing after
+``rounds`` rounds is dropped): on the start's or goal's own lane (same road, same half), no
+obstacle within ``obstacle_pose_clearance`` of the footprint, nor in the start's *departure zone*
+(``pose_zone_length`` ahead of its front bumper) or the goal's *approach zone*
+(``pose_zone_length`` behind its rear end); and no obstacle sticking out of the road's ends.
+
+So the truck can always pull out of the start shoulder, drive the free corridor through an
+obstacle-free intersection, and pull into the goal shoulder, driving forward only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import torch
+from torch import Tensor
+
+from truckrl.sim.geometry import rectangle_segments, wrap_angle
+from truckrl.sim.validation import ConfigError, check_interval, check_range
+
+#: Curb segment slots per scene: 2 roads x 2 curbs x 2 pieces (a straight road uses the first 2).
+CURB_SLOTS = 8
+#: ``kind`` values of scene segments.
+KIND_CURB, KIND_OBSTACLE = 0, 1
+
+
+@dataclass
+class SceneConfig:
+    """Scene generator parameters. Units: metres, radians. See the module doc for the rules.
+
+    The paper (Sec. "Scenes and unified geometry") randomizes road widths, headings, centres,
+    crossing angles, start/goal and obstacles without stating ranges; the defaults fit an
+    articulated truck (widths that let it turn, 25-70 m tasks, 50 m LiDAR range).
+    """
+
+    crossing_prob: float = 0.7
+    road_width: tuple[float, float] = (10.0, 18.0)
+    crossing_angle: tuple[float, float] = (math.pi / 4, 3 * math.pi / 4)
+    center_jitter: float = 10.0
+    half_extent: float = 100.0
+    curb_reach: float = 50.0
+    goal_distance: tuple[float, float] = (25.0, 70.0)
+    shoulder_gap: tuple[float, float] = (0.5, 1.5)
+    pose_intersection_margin: float = 2.0
+    pose_zone_length: float = 20.0
+    max_obstacles: int = 16
+    obstacle_spacing: float = 12.0
+    obstacle_keep_prob: float = 0.5
+    obstacle_length: tuple[float, float] = (3.5, 9.0)
+    obstacle_width: tuple[float, float] = (1.5, 2.2)
+    obstacle_curb_offset: tuple[float, float] = (0.2, 0.6)
+    obstacle_min_gap: float = 1.0
+    obstacle_pose_clearance: float = 2.0
+    obstacle_intersection_clearance: float = 6.0
+    min_free_corridor: float = 4.0
+    rounds: int = 8
+
+    def __post_init__(self) -> None:
+        self.crossing_prob = check_range("scene.crossing_prob", self.crossing_prob, 0.0, 1.0)
+        self.road_width = _positive_interval("scene.road_width", self.road_width, 200.0)
+        self.crossing_angle = check_interval(
+            "scene.crossing_angle", self.crossing_angle, 0.0, math.pi
+        )
+        if self.crossing_angle[0] < 0.05 or self.crossing_angle[1] > math.pi - 0.05:
+            raise ConfigError(
+                f"scene.crossing_angle = {list(self.crossing_angle)}: values must be in "
+                f"[0.05, {math.pi - 0.05:.4f}] rad (roads may not be near-parallel)"
+            )
+        self.center_jitter = check_range("scene.center_jitter", self.center_jitter, 0.0, 1e4)
+        self.half_extent = check_range(
+            "scene.half_extent", self.half_extent, 0.0, 1e4, lo_open=True
+        )
+        self.curb_reach = check_range(
+            "scene.curb_reach", self.curb_reach, 0.0, self.half_extent, hi_open=True
+        )
+        reach = self.half_extent - self.curb_reach
+        self.goal_distance = _positive_interval(
+            "scene.goal_distance", self.goal_distance, 2 * reach
+        )
+        self.shoulder_gap = check_interval(
+            "scene.shoulder_gap", self.shoulder_gap, 0.0, 0.5 * self.road_width[0]
+        )
+        self.pose_intersection_margin = check_range(
+            "scene.pose_intersection_margin", self.pose_intersection_margin, 0.0, 100.0
+        )
+        self.pose_zone_length = check_range(
+            "scene.pose_zone_length", self.pose_zone_length, 0.0, 1e4
+        )
+        self.max_obstacles = _int_range("scene.max_obstacles", self.max_obstacles, 0, 4096)
+        self.obstacle_keep_prob = check_range(
+            "scene.obstacle_keep_prob", self.obstacle_keep_prob, 0.0, 1.0
+        )
+        self.obstacle_length = _positive_interval(
+            "scene.obstacle_length", self.obstacle_length, 100.0
+        )
+        self.obstacle_width = _positive_interval("scene.obstacle_width", self.obstacle_width, 100.0)
+        self.obstacle_curb_offset = _positive_interval(
+            "scene.obstacle_curb_offset", self.obstacle_curb_offset, 100.0
+        )
+        self.obstacle_min_gap = check_range(
+            "scene.obstacle_min_gap", self.obstacle_min_gap, 0.0, 100.0, lo_open=True
+        )
+        self.obstacle_spacing = check_range(
+            "scene.obstacle_spacing",
+            self.obstacle_spacing,
+            self.obstacle_length[1] + self.obstacle_min_gap,
+            1e4,
+        )
+        self.obstacle_pose_clearance = check_range(
+            "scene.obstacle_pose_clearance", self.obstacle_pose_clearance, 0.0, 100.0
+        )
+        self.obstacle_intersection_clearance = check_range(
+            "scene.obstacle_intersection_clearance",
+            self.obstacle_intersection_clearance,
+            0.0,
+            100.0,
+        )
+        strip = self.obstacle_curb_offset[1] + self.obstacle_width[1]
+        self.min_free_corridor = check_range(
+            "scene.min_free_corridor",
+            self.min_free_corridor,
+            0.0,
+            self.road_width[0] - 2.0 * strip,
+        )
+        # Guarantees behind the obstacle rules (see module doc): the free corridor keeps
+        # opposite-curb obstacles clear of a pose and of each other, and the intersection
+        # clearance keeps obstacles of one road clear of everything on the other road.
+        need = max(2.0 * self.obstacle_pose_clearance, self.obstacle_min_gap)
+        if self.min_free_corridor < need:
+            raise ConfigError(
+                f"scene.min_free_corridor = {self.min_free_corridor} must be at least "
+                f"max(2 * scene.obstacle_pose_clearance, scene.obstacle_min_gap) = {need}"
+            )
+        sin_min = min(math.sin(a) for a in self.crossing_angle)
+        need = max(self.obstacle_pose_clearance, self.obstacle_min_gap) / sin_min
+        if self.obstacle_intersection_clearance < need:
+            raise ConfigError(
+                f"scene.obstacle_intersection_clearance = {self.obstacle_intersection_clearance} "
+                f"must be at least max(obstacle_pose_clearance, obstacle_min_gap) / "
+                f"sin(crossing angle) = {need:.3f}"
+            )
+        self.rounds = _int_range("scene.rounds", self.rounds, 1, 1000)
+
+    @property
+    def num_segments(self) -> int:
+        """``E``: curb slots plus 4 edges per obstacle slot."""
+        return CURB_SLOTS + 4 * self.max_obstacles
+
+
+def _positive_interval(name: str, value, hi: float) -> tuple[float, float]:
+    lo_v, hi_v = check_interval(name, value, 0.0, hi)
+    if lo_v <= 0.0:
+        raise ConfigError(f"{name} = {[lo_v, hi_v]}: values must be in (0, {hi}]")
+    return lo_v, hi_v
+
+
+def _int_range(name: str, value, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | float) or int(value) != value:
+        raise ConfigError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}")
+    return int(check_range(name, value, lo, hi))
+
+
+@dataclass
+class SceneBatch:
+    """A batch of ``N`` scenes as plain tensors (world metres, radians).
+
+    Attributes:
+        segments: ``[N, E, 4]`` curb segments (slots ``0..7``) then 4 edges per obstacle slot.
+        mask: ``[N, E]`` bool, ``False`` = padding (unused curb slot, absent obstacle).
+        kind: ``[N, E]`` int8, :data:`KIND_CURB` or :data:`KIND_OBSTACLE` (by slot).
+        start: ``[N, 3]`` start pose ``(x, y, heading)`` of the tractor rear axle, articulation 0.
+        goal: ``[N, 3]`` goal pose, same convention.
+        crossing: ``[N]`` bool, two crossing roads (else one straight road).
+        intersection: ``[N, 4, 2]`` crossing parallelogram corners, counter-clockwise; zeros
+            where ``crossing`` is ``False``.
+        roads: ``[N, 2, 4]`` per road ``(centre x, centre y, heading, width)``.
+        road_mask: ``[N, 2]`` bool, which roads exist.
+    """
+
+    segments: Tensor
+    mask: Tensor
+    kind: Tensor
+    start: Tensor
+    goal: Tensor
+    crossing: Tensor
+    intersection: Tensor
+    roads: Tensor
+    road_mask: Tensor
+
+    def __len__(self) -> int:
+        return self.segments.shape[0]
+
+    @property
+    def device(self) -> torch.device:
+        return self.segments.device
+
+    def assign(self, index: Tensor, other: SceneBatch) -> None:
+        """Overwrite scenes ``index [M]`` (long or ``[N]`` bool) in place with ``other`` (``M`` scenes)."""
+        for f in fields(self):
+            getattr(self, f.name)[index] = getattr(other, f.name)
+
+    def to(self, device) -> SceneBatch:
+        """A copy on ``device``."""
+        return SceneBatch(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
+
+
+def _uniform(bounds: tuple[float, float], u: Tensor) -> Tensor:
+    return bounds[0] + (bounds[1] - bounds[0]) * u
+
+
+def _right(u: Tensor) -> Tensor:
+    """Right-hand normal of unit directions ``u [..., 2]``."""
+    return torch.stack((u[..., 1], -u[..., 0]), dim=-1)
+
+
+def _pick(t: Tensor, idx: Tensor) -> Tensor:
+    """``t[i, idx[i]]`` for ``t [N, 2, ...]`` and ``idx [N]`` (road selection)."""
+    return torch.where((idx == 0).view(-1, *([1] * (t.dim() - 2))), t[:, 0], t[:, 1])
+
+
+def _lateral(width: Tensor, gap: Tensor, half_width: Tensor) -> Tensor:
+    """Offset [m] of a pose from its road centreline: ``gap`` from the curb, kept in its half."""
+    lat = torch.maximum(0.5 * width - gap - half_width, half_width)
+    return torch.minimum(lat, 0.5 * width - half_width)
+
+
+def generate_scenes(
+    cfg: SceneConfig,
+    params: dict[str, Tensor],
+    generator: torch.Generator | None = None,
+    device=None,
+) -> SceneBatch:
+    """Draw one random scene per truck.
+
+    Args:
+        cfg: generator parameters.
+        params: vehicle parameters ``{key: Tensor[N]}`` from
+            :func:`truckrl.sim.vehicle.sample_vehicle_params`; the start and goal footprints use them.
+        generator: source of all randomness; its device is the output device.
+        device: output device when no generator is given (default: that of ``params``).
+
+    Returns:
+        A :class:`SceneBatch` of ``N`` valid scenes (see the module doc for the rules).
+    """
+    if generator is not None:
+        dev = generator.device
+    elif device is not None:
+        dev = torch.device(device)
+    else:
+        dev = next(iter(params.values())).device
+    p = {k: v.to(dev, torch.float32) for k, v in params.items()}
+    n = p["wheelbase"].shape[0]
+    L = cfg.half_extent
+
+    def rand(*shape: int) -> Tensor:
+        return torch.rand(*shape, generator=generator, device=dev)
+
+    # Roads -------------------------------------------------------------------------------------
+    crossing = rand(n) < cfg.crossing_prob
+    centre = (2.0 * rand(n, 2) - 1.0) * cfg.center_jitter
+    h0 = wrap_angle(2.0 * math.pi * rand(n))
+    heading = torch.stack((h0, wrap_angle(h0 + _uniform(cfg.crossing_angle, rand(n)))), dim=-1)
+    width = _uniform(cfg.road_width, rand(n, 2))  # [n, 2]
+    dirs = torch.stack((torch.cos(heading), torch.sin(heading)), dim=-1)  # [n, 2, 2]
+    normals = torch.stack((-dirs[..., 1], dirs[..., 0]), dim=-1)
+
+    # Parallelogram corners: offset o0 from road 0 and o1 from road 1, i.e. n0.x = o0, n1.x = o1.
+    n0, n1 = normals[:, 0], normals[:, 1]
+    det = (n0[:, 0] * n1[:, 1] - n0[:, 1] * n1[:, 0]).unsqueeze(-1)  # sin(angle) > 0
+    signs = torch.tensor([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]], device=dev)
+    o0 = signs[:, 0] * 0.5 * width[:, :1]  # [n, 4]
+    o1 = signs[:, 1] * 0.5 * width[:, 1:]
+    corners = centre.unsqueeze(1) + torch.stack(
+        (
+            (n1[:, 1:2] * o0 - n0[:, 1:2] * o1) / det,
+            (-n1[:, 0:1] * o0 + n0[:, 0:1] * o1) / det,
+        ),
+        dim=-1,
+    )  # [n, 4, 2] counter-clockwise
+    along = torch.einsum("nkc,nrc->nrk", corners - centre.unsqueeze(1), dirs)  # [n, 2, 4]
+    extent = along.abs().amax(-1)  # [n, 2] e_r
+
+    # Start / goal ------------------------------------------------------------------------------
+    front = p["wheelbase"] + p["front_overhang"]
+    rear = torch.maximum(
+        p["rear_overhang"],
+        p["kingpin_offset"] + p["trailer_wheelbase"] + p["trailer_rear_overhang"],
+    )
+    half_w = 0.5 * torch.maximum(p["tractor_width"], p["trailer_width"])
+    reach = L - cfg.curb_reach
+    margin = cfg.pose_intersection_margin
+
+    # Crossing: rounds of rejection on the goal's arm distance.
+    ok = torch.zeros(n, dtype=torch.bool, device=dev)
+    x_s = torch.zeros(n, 2, device=dev)
+    x_g = torch.zeros(n, 2, device=dev)
+    u_s = torch.zeros(n, 2, device=dev)
+    u_g = torch.zeros(n, 2, device=dev)
+    road_s = torch.zeros(n, dtype=torch.long, device=dev)
+    road_g = torch.zeros(n, dtype=torch.long, device=dev)
+    for _ in range(cfg.rounds):
+        r = rand(n, 6)
+        rs = (r[:, 0] < 0.5).long()
+        sig_s = torch.where(r[:, 1] < 0.5, 1.0, -1.0)
+        choice = (3.0 * r[:, 2]).long().clamp_max(2)  # 0 straight on, 1 / 2 turn either way
+        rg = torch.where(choice == 0, rs, 1 - rs)
+        sig_g = torch.where(choice == 0, -sig_s, torch.where(choice == 1, 1.0, -1.0))
+        gaps = _uniform(cfg.shoulder_gap, rand(n, 2))
+        us = -sig_s.unsqueeze(-1) * _pick(dirs, rs)  # towards P
+        ug = sig_g.unsqueeze(-1) * _pick(dirs, rg)  # away from P
+        lat_s = _lateral(_pick(width, rs), gaps[:, 0], half_w)
+        lat_g = _lateral(_pick(width, rg), gaps[:, 1], half_w)
+        as_lo = _pick(extent, rs) + margin + front
+        as_hi = torch.clamp(L - rear, max=reach)
+        ag_lo = _pick(extent, rg) + margin + rear
+        ag_hi = torch.clamp(L - front, max=reach)
+        # goal distance: uniform over goal_distance and the distances between the nearest and
+        # the farthest pose pair on these arms (all values between are reachable by continuity)
+        q = centre + lat_g.unsqueeze(-1) * _right(ug)
+        p_s = centre + lat_s.unsqueeze(-1) * _right(us)
+        d_near = (p_s - as_lo.unsqueeze(-1) * us - q - ag_lo.unsqueeze(-1) * ug).norm(dim=-1)
+        d_far = (p_s - as_hi.unsqueeze(-1) * us - q - ag_hi.unsqueeze(-1) * ug).norm(dim=-1)
+        d_lo = torch.clamp(torch.minimum(d_near, d_far), min=cfg.goal_distance[0])
+        d_hi = torch.clamp(torch.maximum(d_near, d_far), max=cfg.goal_distance[1])
+        dist = d_lo + (d_hi - d_lo).clamp_min(0.0) * r[:, 3]
+        # Arm distances (lateral offsets ignored) with a goal at ag_lo or ag_hi exactly `dist`
+        # away bound a_s: the goal's arm distance then falls in [ag_lo, ag_hi] in most draws.
+        cos_b = -(us * ug).sum(-1)  # angle between the two arms seen from P
+        sin2_b = (1.0 - cos_b * cos_b).clamp_min(0.0)
+        near = (dist * dist - ag_lo * ag_lo * sin2_b).clamp_min(0.0).sqrt()
+        far = dist * dist - ag_hi * ag_hi * sin2_b
+        as_hi = torch.minimum(as_hi, ag_lo * cos_b + near)
+        as_lo = torch.where(
+            far > 0.0, torch.maximum(as_lo, ag_hi * cos_b + far.clamp_min(0.0).sqrt()), as_lo
+        )
+        a_s = as_lo + (as_hi - as_lo).clamp_min(0.0) * r[:, 4]
+        xs = p_s - a_s.unsqueeze(-1) * us
+        # goal = q + a * ug with |xs - goal| = dist: the larger root of a quadratic in a
+        b = (ug * (xs - q)).sum(-1)
+        disc = b * b - ((xs - q) ** 2).sum(-1) + dist * dist
+        a_g = b + disc.clamp_min(0.0).sqrt()
+        valid = (disc >= 0.0) & (a_g >= ag_lo) & (a_g <= ag_hi) & (as_lo <= as_hi) & (d_lo <= d_hi)
+        take = valid & ~ok
+        t2 = take.unsqueeze(-1)
+        x_s = torch.where(t2, xs, x_s)
+        x_g = torch.where(t2, q + a_g.unsqueeze(-1) * ug, x_g)
+        u_s = torch.where(t2, us, u_s)
+        u_g = torch.where(t2, ug, u_g)
+        road_s = torch.where(take, rs, road_s)
+        road_g = torch.where(take, rg, road_g)
+        ok = ok | valid
+    crossing = crossing & ok
+
+    # Straight road (also the fallback): goal ahead of the start in the same lane.
+    r = rand(n, 5)
+    k0 = torch.where(r[:, 0] < 0.5, 1.0, -1.0)
+    us = k0.unsqueeze(-1) * dirs[:, 0]
+    lat_s = _lateral(width[:, 0], _uniform(cfg.shoulder_gap, r[:, 1]), half_w)
+    lat_g = _lateral(width[:, 0], _uniform(cfg.shoulder_gap, r[:, 2]), half_w)
+    dist = _uniform(cfg.goal_distance, r[:, 3])
+    ahead = (dist * dist - (lat_s - lat_g) ** 2).clamp_min(0.0).sqrt()
+    t_lo = torch.clamp(rear - L, min=-reach)
+    t_hi = torch.clamp(L - front, max=reach) - ahead
+    t_s = t_lo + (t_hi - t_lo).clamp_min(0.0) * r[:, 4]
+    right = _right(us)
+    xs = centre + t_s.unsqueeze(-1) * us + lat_s.unsqueeze(-1) * right
+    xg = centre + (t_s + ahead).unsqueeze(-1) * us + lat_g.unsqueeze(-1) * right
+    c2 = crossing.unsqueeze(-1)
+    x_s = torch.where(c2, x_s, xs)
+    x_g = torch.where(c2, x_g, xg)
+    u_s = torch.where(c2, u_s, us)
+    u_g = torch.where(c2, u_g, us)
+    road_s = torch.where(crossing, road_s, 0)
+    road_g = torch.where(crossing, road_g, 0)
+    start = torch.cat((x_s, torch.atan2(u_s[:, 1:], u_s[:, :1])), dim=-1)
+    goal = torch.cat((x_g, torch.atan2(u_g[:, 1:], u_g[:, :1])), dim=-1)
+
+    # Curbs -------------------------------------------------------------------------------------
+    half = 0.5 * width.unsqueeze(-1)  # [n, 2, 1]
+    curb_mid = centre.view(n, 1, 1, 2) + torch.stack((-half, half), dim=2) * normals.unsqueeze(2)
+    line_a = curb_mid - L * dirs.unsqueeze(2)  # [n, road, side, 2]
+    line_b = curb_mid + L * dirs.unsqueeze(2)
+    # corner indices on each curb line: road 0 side -/+ -> (0, 3) / (1, 2); road 1 -> (0, 1) / (3, 2)
+    idx = torch.tensor([[[0, 3], [1, 2]], [[0, 1], [3, 2]]], device=dev)
+    cj = corners[:, idx]  # [n, road, side, 2 corners, 2]
+    sj = torch.einsum("nrsjc,nrc->nrsj", cj - centre.view(n, 1, 1, 1, 2), dirs)
+    first = (sj[..., 0] <= sj[..., 1]).unsqueeze(-1)
+    c_lo = torch.where(first, cj[..., 0, :], cj[..., 1, :])
+    c_hi = torch.where(first, cj[..., 1, :], cj[..., 0, :])
+    cross_curbs = torch.stack(
+        (torch.cat((line_a, c_lo), -1), torch.cat((c_hi, line_b), -1)), dim=3
+    ).reshape(n, CURB_SLOTS, 4)
+    straight_curbs = torch.zeros_like(cross_curbs)
+    straight_curbs[:, :2] = torch.cat((line_a[:, 0], line_b[:, 0]), -1)
+    curbs = torch.where(crossing.view(n, 1, 1), cross_curbs, straight_curbs)
+    curb_mask = torch.ones(n, CURB_SLOTS, dtype=torch.bool, device=dev)
+    curb_mask[:, 2:] = crossing.unsqueeze(-1)
+    corners = corners * crossing.view(n, 1, 1)
+
+    obstacles, obstacle_mask = _obstacles(
+        cfg,
+        rand,
+        crossing=crossing,
+        centre=centre,
+        heading=heading,
+        width=width,
+        dirs=dirs,
+        normals=normals,
+        extent=extent,
+        corners=corners,
+        start=start,
+        goal=goal,
+        road_s=road_s,
+        road_g=road_g,
+        front=front,
+        rear=rear,
+    )
+    segments = torch.cat((curbs, obstacles), dim=1)
+    mask = torch.cat((curb_mask, obstacle_mask), dim=1)
+    kind = torch.full((n, cfg.num_segments), KIND_OBSTACLE, dtype=torch.int8, device=dev)
+    kind[:, :CURB_SLOTS] = KIND_CURB
+    roads = torch.cat(
+        (centre.unsqueeze(1).expand(n, 2, 2), heading.unsqueeze(-1), width.unsqueeze(-1)), -1
+    )
+    road_mask = torch.stack((torch.ones_like(crossing), crossing), dim=-1)
+    roads = roads * road_mask.unsqueeze(-1)
+    return SceneBatch(
+        segments=segments * mask.unsqueeze(-1),
+        mask=mask,
+        kind=kind,
+        start=start,
+        goal=goal,
+        crossing=crossing,
+        intersection=corners,
+        roads=roads,
+        road_mask=road_mask,
+    )
+
+
+def _pose_zone(
+    pose: Tensor, road: Tensor, centre: Tensor, dirs: Tensor, t0: Tensor, t1: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Lane side ``[N]`` (+-1 along the road normal) and ``[lo, hi]`` interval ``[N]`` along
+    ``d_road`` of the zone spanning ``t0..t1`` metres ahead of the pose's rear axle."""
+    d = _pick(dirs, road)
+    u = torch.stack((torch.cos(pose[:, 2]), torch.sin(pose[:, 2])), dim=-1)
+    k = torch.where((u * d).sum(-1) >= 0.0, 1.0, -1.0)  # driving with (+1) or against d
+    s = ((pose[:, :2] - centre) * d).sum(-1)
+    a, b = s + k * t0, s + k * t1
+    return -k, torch.minimum(a, b), torch.maximum(a, b)
+
+
+def _obstacles(cfg: SceneConfig, rand, **g) -> tuple[Tensor, Tensor]:
+    """Obstacle edges ``[N, 4K, 4]`` and mask ``[N, 4K]`` (rules in the module doc).
+
+    Obstacles and start/goal footprints are rectangles aligned with their road, so every rule that
+    can fail is an interval test in road coordinates (``s`` along ``d_r``); the others hold by
+    construction of the slots and by the config checks of :class:`SceneConfig`.
+    """
+    crossing, centre = g["crossing"], g["centre"]
+    n, dev, K = crossing.shape[0], crossing.device, cfg.max_obstacles
+    if K == 0:
+        return torch.zeros(n, 0, 4, device=dev), torch.zeros(n, 0, dtype=torch.bool, device=dev)
+    slot = torch.arange(K, device=dev).unsqueeze(0)  # [1, K]
+    n_lines = torch.where(crossing, 4, 2).unsqueeze(-1)  # [n, 1]
+    line = slot % n_lines
+    rank = torch.div(slot, n_lines, rounding_mode="floor")
+    arm = torch.where(rank % 2 == 0, 1.0, -1.0)
+    road = torch.div(line, 2, rounding_mode="floor")  # [n, K]
+    side = torch.where(line % 2 == 0, -1.0, 1.0)
+    rows = torch.arange(n, device=dev).unsqueeze(-1)
+    d = g["dirs"][rows, road]  # [n, K, 2]
+    nrm = g["normals"][rows, road]
+    w = g["width"][rows, road]
+    hdg = g["heading"][rows, road]
+    first = torch.where(
+        crossing.unsqueeze(-1),
+        g["extent"][rows, road] + cfg.obstacle_intersection_clearance,
+        0.0,
+    )
+    slot_lo = first + torch.div(rank, 2, rounding_mode="floor") * cfg.obstacle_spacing
+    keep = rand(n, K) < cfg.obstacle_keep_prob
+
+    # Keep-out intervals on the start's and goal's own lane: footprint + zone, padded by clearance.
+    pad = cfg.obstacle_pose_clearance
+    zones = [
+        (
+            g["road_s"],
+            *_lane_interval(
+                g["start"],
+                g["road_s"],
+                centre,
+                g["dirs"],
+                -g["rear"] - pad,
+                g["front"] + cfg.pose_zone_length + pad,
+            ),
+        ),
+        (
+            g["road_g"],
+            *_lane_interval(
+                g["goal"],
+                g["road_g"],
+                centre,
+                g["dirs"],
+                -g["rear"] - cfg.pose_zone_length - pad,
+                g["front"] + pad,
+            ),
+        ),
+    ]
+
+    ok = torch.zeros(n, K, dtype=torch.bool, device=dev)
+    s = torch.zeros(n, K, device=dev)
+    dims = torch.zeros(n, K, 3, device=dev)  # half length, half width, curb offset
+    for _ in range(cfg.rounds):
+        r = rand(n, K, 4)
+        half_len = 0.5 * _uniform(cfg.obstacle_length, r[..., 0])
+        room = cfg.obstacle_spacing - 2.0 * half_len - cfg.obstacle_min_gap
+        along = slot_lo + 0.5 * cfg.obstacle_min_gap + half_len + room * r[..., 3]
+        valid = along + half_len <= cfg.half_extent
+        s_r = arm * along
+        for road_p, side_p, lo, hi in zones:
+            same_lane = (road == road_p.unsqueeze(-1)) & (side == side_p.unsqueeze(-1))
+            overlap = (s_r + half_len > lo.unsqueeze(-1)) & (s_r - half_len < hi.unsqueeze(-1))
+            valid = valid & ~(same_lane & overlap)
+        take = (valid & ~ok).unsqueeze(-1)
+        s = torch.where(take[..., 0], s_r, s)
+        drawn = torch.stack(
+            (
+                half_len,
+                0.5 * _uniform(cfg.obstacle_width, r[..., 1]),
+                _uniform(cfg.obstacle_curb_offset, r[..., 2]),
+            ),
+            dim=-1,
+        )
+        dims = torch.where(take, drawn, dims)
+        ok = ok | valid
+    half_len, half_wid, offset = dims.unbind(-1)
+    lateral = side * (0.5 * w - offset - half_wid)
+    xy = centre.unsqueeze(1) + s.unsqueeze(-1) * d + lateral.unsqueeze(-1) * nrm
+    edges = rectangle_segments(xy[..., 0], xy[..., 1], hdg, half_len, half_len, half_wid)
+    mask = (keep & ok).unsqueeze(-1).expand(n, K, 4).reshape(n, 4 * K)
+    return edges.flatten(1, 2), mask
+
+
+def _lane_interval(
+    pose: Tensor, road: Tensor, centre: Tensor, dirs: Tensor, t0: Tensor, t1: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The lane of a pose and an interval on it.
+
+    Returns:
+        ``side [N]`` (+-1 along the road normal ``n_r``: the pose's half of road ``road [N]``) and
+        ``lo, hi [N]``: the along-road coordinates [m] of ``t0..t1 [N]`` metres ahead of the pose's
+        rear axle, measured along ``d_r`` from the scene centre.
+    """
+    d = _pick(dirs, road)
+    u = torch.stack((torch.cos(pose[:, 2]), torch.sin(pose[:, 2])), dim=-1)
+    k = torch.where((u * d).sum(-1) >= 0.0, 1.0, -1.0)  # driving along (+1) or against d_r
+    s = ((pose[:, :2] - centre) * d).sum(-1)
+    a, b = s + k * t0, s + k * t1
+    return -k, torch.minimum(a, b), torch.maximum(a, b)
