@@ -1,0 +1,169 @@
+"""Control abstractions: which derivative of speed and steering the policy commands.
+
+Paper Sec. "Control abstractions": the longitudinal axis is commanded as speed, acceleration or
+jerk, the lateral axis as steering angle, rate or acceleration; any pairing is a config choice
+(paper default: acceleration + steering rate). Each axis is a chain of three quantities
+
+==========  ==============  ==============  ===============
+axis        order 0         order 1         order 2
+==========  ==============  ==============  ===============
+long.       speed [m/s]     accel [m/s^2]   jerk [m/s^3]
+lateral     steer [rad]     steer_rate      steer_accel
+                            [rad/s]         [rad/s^2]
+==========  ==============  ==============  ===============
+
+with per-env bounds from the vehicle params: speed in ``[min_speed, max_speed]``, every other
+quantity in ``[-max_q, max_q]`` (``max_accel``, ``max_jerk``, ``max_steer``, ``max_steer_rate``,
+``max_steer_accel``). An action component ``u`` is clamped to ``[-1, 1]`` and mapped affinely
+onto the commanded quantity's bounds (``u * max_q``; speed: ``-1 -> min_speed``,
+``+1 -> max_speed``). Per mode, one step of length ``dt`` does:
+
+=============  ===================================================================================
+mode           update (``'`` = new value, ``clip`` = clamp to that quantity's bounds)
+=============  ===================================================================================
+speed (long.)  ``v' = command``; ``a' = clip((v' - v) / dt)``; ``j' = clip((a' - a) / dt)``
+accel (long.)  ``a' = command``; ``v' = clip(v + a' dt)``; if ``v'`` was clipped,
+               ``a' = clip((v' - v) / dt)``; ``j' = clip((a' - a) / dt)``
+jerk (long.)   ``j' = command``; ``a' = clip(a + j' dt)``; ``v' = clip(v + a' dt)``; if ``v'`` was
+               clipped, ``a' = clip((v' - v) / dt)``; if ``a'`` was clipped or rewritten,
+               ``j' = clip((a' - a) / dt)``
+angle (lat.)   as speed, with ``(steer, steer_rate, steer_accel)``
+rate (lat.)    as accel, with ``(steer, steer_rate, steer_accel)``
+accel (lat.)   as jerk, with ``(steer, steer_rate, steer_accel)``
+=============  ===================================================================================
+
+So the commanded quantity and everything below it are integrated with semi-implicit Euler
+(``q' = q + q_dot' dt``, the new rate moves the lower quantity), and when a lower quantity
+saturates the rates above it are replaced by what was actually realised: the state always
+satisfies ``v' = v + a' dt`` (and likewise up the chain) unless a realised rate had to be
+clipped to its own bound (e.g. an instant stop at the speed limit from full acceleration, which
+would need more than ``max_jerk``). Quantities above the commanded one are finite differences
+of what happened, clipped to their bounds; they feed the observation, not the motion. Speed
+and angle commands take effect instantly (an ideal set-point), as in the paper.
+
+Non-finite action entries are not sanitized here: NaN propagates into the state. Callers
+(the environment) must reject or mask them before calling :meth:`Control.step`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from truckrl.sim.validation import check_choice, check_range, from_mapping
+
+LONGITUDINAL_MODES: tuple[str, ...] = ("speed", "accel", "jerk")
+LATERAL_MODES: tuple[str, ...] = ("angle", "rate", "accel")
+
+#: State keys, in the fixed order used by observations: longitudinal chain then lateral chain.
+CONTROL_KEYS: tuple[str, ...] = ("speed", "accel", "jerk", "steer", "steer_rate", "steer_accel")
+
+_LONG_KEYS = CONTROL_KEYS[:3]
+_LAT_KEYS = CONTROL_KEYS[3:]
+_LONG_LIMITS = ("max_speed", "max_accel", "max_jerk")
+_LAT_LIMITS = ("max_steer", "max_steer_rate", "max_steer_accel")
+
+
+@dataclass
+class ControlConfig:
+    """Which quantity each action component commands (``conf/control/<long>_<lat>.yaml``)."""
+
+    longitudinal: str = "accel"  # paper: acceleration + steering rate
+    lateral: str = "rate"
+
+    def __post_init__(self) -> None:
+        check_choice("control.longitudinal", self.longitudinal, LONGITUDINAL_MODES)
+        check_choice("control.lateral", self.lateral, LATERAL_MODES)
+
+
+def _clip(x: Tensor, lo: Tensor, hi: Tensor) -> Tensor:
+    return torch.minimum(torch.maximum(x, lo), hi)
+
+
+class Control:
+    """Maps normalized actions to the speed/steering state, integrating and clamping.
+
+    Args:
+        cfg: :class:`ControlConfig` or a mapping with its fields (e.g. a Hydra node).
+        dt: control step [s], ``> 0`` (paper: 0.1 s).
+        min_speed: lower speed bound [m/s] (``VehicleConfig.min_speed``; 0 = forward only).
+
+    Raises:
+        ConfigError: unknown mode, ``dt <= 0`` or non-finite ``min_speed``.
+    """
+
+    def __init__(self, cfg: ControlConfig, dt: float, min_speed: float = 0.0) -> None:
+        self.cfg = from_mapping(ControlConfig, cfg, "control")
+        self.dt = check_range("dt", dt, 0.0, math.inf, lo_open=True, hi_open=True)
+        self.min_speed = check_range("min_speed", min_speed)
+        self._long_order = LONGITUDINAL_MODES.index(self.cfg.longitudinal)
+        self._lat_order = LATERAL_MODES.index(self.cfg.lateral)
+
+    def zero_state(
+        self, n: int, device: torch.device | str | None = None, dtype: torch.dtype = torch.float32
+    ) -> dict[str, Tensor]:
+        """At-rest state ``{key: Tensor[n]}`` for every key of :data:`CONTROL_KEYS`.
+
+        All zeros, except speed starts at ``min_speed`` when that is positive (0 must be inside
+        the speed bounds to count as rest).
+        """
+        state = {k: torch.zeros(n, device=device, dtype=dtype) for k in CONTROL_KEYS}
+        if self.min_speed > 0.0:
+            state["speed"].fill_(self.min_speed)
+        return state
+
+    def step(
+        self, action: Tensor, state: dict[str, Tensor], params: dict[str, Tensor]
+    ) -> dict[str, Tensor]:
+        """One control step.
+
+        Args:
+            action: ``[N, 2]`` normalized commands: ``[:, 0]`` longitudinal, ``[:, 1]`` lateral;
+                clamped to ``[-1, 1]``.
+            state: ``{key: Tensor[N]}`` for every key of :data:`CONTROL_KEYS` (units in module doc).
+            params: per-env vehicle parameters ``{key: Tensor[N]}`` (uses the ``max_*`` limits).
+
+        Returns:
+            The new state ``{key: Tensor[N]}``, all six keys, each within its bounds.
+        """
+        u = action.clamp(-1.0, 1.0)
+        hi_long = [params[k] for k in _LONG_LIMITS]
+        lo_long = [torch.full_like(hi_long[0], self.min_speed), -hi_long[1], -hi_long[2]]
+        hi_lat = [params[k] for k in _LAT_LIMITS]
+        lo_lat = [-h for h in hi_lat]
+        new_long = self._chain(
+            u[:, 0], self._long_order, [state[k] for k in _LONG_KEYS], lo_long, hi_long
+        )
+        new_lat = self._chain(
+            u[:, 1], self._lat_order, [state[k] for k in _LAT_KEYS], lo_lat, hi_lat
+        )
+        return dict(zip(CONTROL_KEYS, new_long + new_lat, strict=True))
+
+    def _chain(
+        self, u: Tensor, order: int, old: list[Tensor], lo: list[Tensor], hi: list[Tensor]
+    ) -> list[Tensor]:
+        """Update one axis ``(q0, q1, q2)`` whose quantity ``q_order`` is commanded by ``u``."""
+        dt = self.dt
+        new: list[Tensor | None] = [None, None, None]
+        # affine [-1, 1] -> [lo, hi]; exact u * hi for symmetric bounds (0.5 and 2 scale exactly)
+        target = 0.5 * (hi[order] + lo[order]) + 0.5 * u * (hi[order] - lo[order])
+        new[order] = _clip(target, lo[order], hi[order])
+        saturated = [torch.zeros_like(u, dtype=torch.bool) for _ in range(3)]
+        for i in range(order - 1, -1, -1):
+            raw = old[i] + new[i + 1] * dt
+            new[i] = _clip(raw, lo[i], hi[i])
+            saturated[i] = new[i] != raw
+        # Bottom-up: replace rates by what the level below actually did. `broken` marks envs
+        # where new[i-1] != old[i-1] + new[i] * dt would otherwise hold.
+        broken = torch.zeros_like(u, dtype=torch.bool)
+        for i in (1, 2):
+            realised = _clip((new[i - 1] - old[i - 1]) / dt, lo[i], hi[i])
+            if i > order:
+                new[i] = realised
+            else:
+                broken = broken | saturated[i - 1]
+                new[i] = torch.where(broken, realised, new[i])
+        return new
