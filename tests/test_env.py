@@ -40,7 +40,7 @@ def test_parallel_env_specs_and_distinct_workers():
         assert td.batch_size == (2, 8)
         assert not torch.allclose(td["observation"][0], td["observation"][1])
         penv.set_difficulty(1.5)
-        assert penv.difficulty == [1.5, 1.5]
+        assert penv.get_difficulty() == [1.5, 1.5]
     finally:
         penv.close()
 
@@ -59,10 +59,10 @@ def _clear_scene(env, goal=(40.0, 0.0, 0.0)):
 
 def test_progress_reward_driving_straight_at_goal():
     env = make(3, control={"longitudinal": "speed", "lateral": "angle"})
-    env.reset()
+    td = env.reset()
     _clear_scene(env, goal=(40.0, 0.0, 0.0))
     vmax = env._state["params", "max_speed"].clone()
-    td = env.step(env.reset().set("action", torch.tensor([[1.0, 0.0]] * 3)))
+    td = env.step(td.set("action", torch.tensor([[1.0, 0.0]] * 3)))
     nxt = td["next"]
     # speed mode: +1 commands max_speed; one Euler step moves the rear axle v*dt toward the goal
     expected = 0.05 * vmax * 0.1

@@ -298,6 +298,10 @@ class TruckEnv(EnvBase):
     @property
     def difficulty(self) -> float:
         """Current difficulty (all trucks share it)."""
+        return self.get_difficulty()
+
+    def get_difficulty(self) -> float:
+        """Current difficulty; a method, so ``ParallelEnv`` dispatches it to every worker."""
         return float(self._difficulty[0])
 
     def tolerances(self) -> tuple[torch.Tensor, torch.Tensor]:

@@ -21,7 +21,7 @@ front_overhang          m       1.2 - 1.6       front axle to front bumper
 rear_overhang           m       0.6 - 1.2       rear axle to tractor rear end
 tractor_width           m       2.3 - 2.55      tractor body width
 kingpin_offset          m       -0.5 - 0.3      ``a_tk``, rear axle to kingpin (+ = behind)
-cab_gap                 m       0.4 - 1.0       trailer front face to cab back wall at phi = 0
+cab_gap                 m       0.7 - 1.2       trailer front face to cab back wall at phi = 0
 trailer_wheelbase       m       6.0 - 11.0      ``L_ka``, kingpin to trailer axle
 trailer_front_overhang  m       0.9 - 1.6       kingpin to trailer front face
 trailer_rear_overhang   m       1.0 - 3.5       trailer axle to trailer rear end
@@ -98,7 +98,9 @@ class VehicleConfig:
     rear_overhang: tuple[float, float] = (0.6, 1.2)
     tractor_width: tuple[float, float] = (2.3, 2.55)
     kingpin_offset: tuple[float, float] = (-0.5, 0.3)
-    cab_gap: tuple[float, float] = (0.4, 1.0)
+    # >= 0.7 m so the widest, shortest-overhang trailer corner (sqrt(0.9^2 + 1.3^2) - 0.9 = 0.68 m
+    # swing) clears the cab up to 90 deg: jack-knife contact then only happens near phi_max.
+    cab_gap: tuple[float, float] = (0.7, 1.2)
     trailer_wheelbase: tuple[float, float] = (6.0, 11.0)
     trailer_front_overhang: tuple[float, float] = (0.9, 1.6)
     trailer_rear_overhang: tuple[float, float] = (1.0, 3.5)
