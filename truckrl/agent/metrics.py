@@ -1,0 +1,108 @@
+"""Episode statistics from collected batches, kept on device until logging.
+
+The collector hands over ``[..., T]`` batches (time last) of a set of environments that keep
+running across batches, so an episode may span two batches. :class:`EpisodeTracker` carries the
+running per-env sums of the reward terms over batch boundaries and reports, for the episodes that
+ended in a batch: the outcome rates, the episode length, the final errors and each reward term
+**summed over the episode** (averaged over the episodes that ended).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict import TensorDictBase
+from torch import Tensor
+
+from truckrl.env import ERROR_KEYS, REWARD_TERMS
+
+RETURN_KEYS = ("reward", *REWARD_TERMS)
+
+
+def episode_sums(x: Tensor, done: Tensor, carry: Tensor) -> tuple[Tensor, Tensor]:
+    """Per-episode sums of a per-step signal along the last (time) dim, with carry-over.
+
+    Args:
+        x: ``[*E, T, K]`` per-step values (K signals).
+        done: ``[*E, T]`` bool, True at the last step of an episode.
+        carry: ``[*E, K]`` sums of the episodes still running when the previous batch ended.
+
+    Returns:
+        ``(sums [*E, T, K], carry [*E, K])``: ``sums[..., t, :]`` is the full episode sum where
+        ``done[..., t]`` (meaningless elsewhere); the new carry holds the unfinished episodes.
+    """
+    t = x.shape[-2]
+    cs = x.cumsum(-2)
+    steps = torch.arange(t, device=x.device).expand_as(done)
+    last_done = torch.where(done, steps, torch.full_like(steps, -1)).cummax(-1).values
+    prev = torch.cat((torch.full_like(last_done[..., :1], -1), last_done[..., :-1]), dim=-1)
+    gathered = cs.gather(-2, prev.clamp(min=0)[..., None].expand_as(cs))
+    base = torch.where((prev >= 0)[..., None], gathered, -carry[..., None, :])
+    sums = cs - base
+    # the running episode after the last done: what the step after the batch would see as base
+    end = last_done[..., -1]
+    end_cs = cs.gather(-2, end.clamp(min=0)[..., None, None].expand(*end.shape, 1, cs.shape[-1]))
+    tail_base = torch.where((end >= 0)[..., None], end_cs[..., 0, :], -carry)
+    return sums, cs[..., -1, :] - tail_base
+
+
+class EpisodeTracker:
+    """Turn each batch into episode statistics; carries reward-term sums across batches."""
+
+    def __init__(self) -> None:
+        self.carry: Tensor | None = None
+
+    def reset(self) -> None:
+        self.carry = None
+
+    def update(self, batch: TensorDictBase) -> dict[str, Tensor]:
+        """Statistics of the episodes that ended in ``batch`` (``[*E, T]``), as 0-dim tensors.
+
+        Keys: "episodes", "success_rate", "collision_rate", "jackknife_rate", "timeout_rate",
+        "length" [steps], "final_pos_error" [m], "final_tractor_heading_error" [deg],
+        "final_trailer_heading_error" [deg], "return/<term>" (summed per episode), and
+        "step/<term>" (mean per step over the batch). Rates and means are NaN without episodes.
+        """
+        nxt = batch["next"]
+        done = nxt["done"].squeeze(-1)
+        x = torch.cat([nxt[k] for k in RETURN_KEYS], dim=-1).to(torch.float32)
+        if self.carry is None or self.carry.shape != x.shape[:-2] + x.shape[-1:]:
+            self.carry = torch.zeros(*x.shape[:-2], x.shape[-1], device=x.device)
+        sums, self.carry = episode_sums(x, done, self.carry)
+
+        n = done.sum()
+        denom = n.clamp(min=1).to(torch.float32)
+        nan = torch.tensor(math.nan, device=done.device)
+
+        def mean_at_done(v: Tensor) -> Tensor:
+            return torch.where(n > 0, (v.squeeze(-1).to(torch.float32) * done).sum() / denom, nan)
+
+        out = {
+            "episodes": n.to(torch.float32),
+            "success_rate": mean_at_done(nxt["success"]),
+            "collision_rate": mean_at_done(nxt["collision"]),
+            "jackknife_rate": mean_at_done(nxt["jackknife"]),
+            "timeout_rate": mean_at_done(nxt["truncated"]),
+            "length": mean_at_done(nxt["step_count"]),
+            "final_pos_error": mean_at_done(nxt["pos_error"]),
+        }
+        for k in ERROR_KEYS[1:]:
+            out[f"final_{k}"] = mean_at_done(nxt[k]) * (180.0 / math.pi)
+        ep = (sums * done[..., None]).sum(dim=tuple(range(done.dim()))) / denom
+        step_mean = x.mean(dim=tuple(range(done.dim())))
+        for i, k in enumerate(RETURN_KEYS):
+            out[f"return/{k}"] = torch.where(n > 0, ep[i], nan)
+            out[f"step/{k}"] = step_mean[i]
+        return out
+
+
+def finished_in_time_order(batch: TensorDictBase, key: str) -> Tensor:
+    """Values of ``("next", key)`` at the episodes' last steps, oldest first: ``[K]``."""
+    nxt = batch["next"]
+    done = nxt["done"].squeeze(-1)
+    value = nxt[key].squeeze(-1)
+    # time-major flattening: all envs' step 0, then step 1, ...
+    done_t = done.movedim(-1, 0).reshape(-1)
+    value_t = value.movedim(-1, 0).reshape(-1)
+    return value_t[done_t]

@@ -1,0 +1,90 @@
+"""TensorBoard output of a training run: scalars, the config, hyper-parameters and videos.
+
+Events go to ``<run_dir>/tb``; the global step is the number of environment frames. A resumed
+run opens the same directory with ``purge_step`` = the checkpoint's frame count, so TensorBoard
+drops whatever the killed run logged after its last checkpoint and the curves continue seamlessly.
+
+Videos: TensorBoard's ``add_video`` needs ``moviepy``, which is not a dependency. Each rollout is
+written as ``<run_dir>/videos/iter_XXXXXX.mp4`` with OpenCV instead, and a strip of evenly spaced
+frames is logged as the image ``video/rollout``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from torch.utils.tensorboard import SummaryWriter
+
+
+def flatten(cfg: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"a": {"b": 1}}`` -> ``{"a.b": 1}``; lists and None become strings (hparams types)."""
+    out: dict[str, Any] = {}
+    for k, v in cfg.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            out.update(flatten(v, f"{key}."))
+        elif isinstance(v, bool | int | float | str):
+            out[key] = v
+        else:
+            out[key] = str(v)
+    return out
+
+
+def write_mp4(path: Path, frames: np.ndarray, fps: float) -> Path:
+    """Write RGB ``frames [F, H, W, 3]`` uint8 to an mp4 (codec mp4v)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    h, w = frames.shape[1:3]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+    try:
+        for f in frames:
+            writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    finally:
+        writer.release()
+    return path
+
+
+def frame_strip(frames: np.ndarray, count: int = 6, height: int = 200) -> np.ndarray:
+    """``count`` evenly spaced frames side by side, each resized to ``height`` px: ``[h, W, 3]``."""
+    idx = np.linspace(0, len(frames) - 1, num=min(count, len(frames))).round().astype(int)
+    tiles = []
+    for f in frames[idx]:
+        w = max(1, round(f.shape[1] * height / f.shape[0]))
+        tiles.append(cv2.resize(f, (w, height), interpolation=cv2.INTER_AREA))
+    return np.concatenate(tiles, axis=1)
+
+
+class RunLogger:
+    """TensorBoard writer for one run directory.
+
+    Args:
+        run_dir: the run's output directory (events in ``run_dir/tb``).
+        purge_step: first global step to keep when continuing a run (None for a new run).
+    """
+
+    def __init__(self, run_dir: str | Path, purge_step: int | None = None) -> None:
+        self.run_dir = Path(run_dir)
+        self.writer = SummaryWriter(log_dir=str(self.run_dir / "tb"), purge_step=purge_step)
+
+    def scalars(self, values: Mapping[str, float], step: int) -> None:
+        for k, v in values.items():
+            self.writer.add_scalar(k, v, global_step=step)
+
+    def config(self, yaml_text: str, hparams: Mapping[str, Any], metrics: Mapping[str, float]):
+        """Log the resolved config as text and the flattened config as an hparams table."""
+        self.writer.add_text("config", "```yaml\n" + yaml_text + "\n```", global_step=0)
+        self.writer.add_hparams(flatten(hparams), dict(metrics), run_name=".", global_step=0)
+
+    def video(self, frames: np.ndarray, iteration: int, step: int, fps: float) -> Path:
+        path = write_mp4(self.run_dir / "videos" / f"iter_{iteration:06d}.mp4", frames, fps)
+        self.writer.add_image("video/rollout", frame_strip(frames), step, dataformats="HWC")
+        return path
+
+    def flush(self) -> None:
+        self.writer.flush()
+
+    def close(self) -> None:
+        self.writer.close()
