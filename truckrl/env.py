@@ -123,6 +123,7 @@ REWARD_TERMS = (
 )
 FLAG_KEYS = ("success", "collision", "jackknife", "action_nonfinite")
 ERROR_KEYS = ("pos_error", "tractor_heading_error", "trailer_heading_error")
+_STATE_KEYS = ("pose", "goal", "segments", "mask", "step_count", *CONTROL_KEYS, *ERROR_KEYS)
 
 
 @dataclass
@@ -166,6 +167,7 @@ class EnvConfig:
     max_steps: int = 200  # paper: 200 steps per episode
     substeps: int = 1  # Euler sub-steps per dt (1 = the paper's scheme)
     nonfinite_action: str = "zero"
+    compile: bool = False  # torch.compile the step and observation (fuses the pair tests)
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     scene: SceneConfig = field(default_factory=SceneConfig)
     lidar: LidarConfig = field(default_factory=LidarConfig)
@@ -178,6 +180,8 @@ class EnvConfig:
         self.max_steps = int(check_range("env.max_steps", self.max_steps, 1, 1e6))
         self.substeps = int(check_range("env.substeps", self.substeps, 1, 1000))
         check_choice("env.nonfinite_action", self.nonfinite_action, ("zero", "error"))
+        if not isinstance(self.compile, bool):
+            raise ConfigError(f"env.compile = {self.compile!r} must be true or false")
         for name, cls in (
             ("vehicle", VehicleConfig),
             ("scene", SceneConfig),
@@ -251,6 +255,9 @@ class TruckEnv(EnvBase):
             (self.num_envs,), cfg.tolerance.difficulty, device=self.device
         )
         self._make_specs()
+        compile_fn = (lambda f: torch.compile(f, dynamic=False)) if cfg.compile else (lambda f: f)
+        self._transition_fn = compile_fn(self._transition)
+        self._features_fn = compile_fn(self._features)
         if seed is None:
             seed = int(torch.empty((), dtype=torch.int64).random_().item())
         self.set_seed(seed)
@@ -306,7 +313,11 @@ class TruckEnv(EnvBase):
 
     def tolerances(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Per-truck ``(position [m], heading [rad])`` tolerances, each ``[N]``."""
-        scale = torch.pow(2.0, -self._difficulty)
+        return self._tolerances(self._difficulty)
+
+    def _tolerances(self, difficulty: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        # paper: tolerances = 30 m and 60 deg times 2**-difficulty
+        scale = torch.pow(2.0, -difficulty)
         tol = self.config.tolerance
         return tol.position * scale, math.radians(tol.heading_deg) * scale
 
@@ -355,12 +366,39 @@ class TruckEnv(EnvBase):
 
     # ------------------------------------------------------------------ step
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        s, cfg, w = self._state, self.config, self.config.reward
         action = tensordict["action"]
+        if self.config.nonfinite_action == "error":
+            finite = torch.isfinite(action).all(-1)
+            if not bool(finite.all()):
+                bad = (~finite).nonzero().squeeze(-1).tolist()
+                raise ValueError(f"non-finite action for env(s) {bad}: {action[~finite].tolist()}")
+        new, out = self._transition_fn(action, self._flat_state(), self._difficulty)
+        self._state.update(new)
+        return TensorDict(out, batch_size=[self.num_envs], device=self.device)
+
+    def _flat_state(self) -> dict[str, Any]:
+        """The state as plain tensors (``params`` as a dict): what the compiled functions take."""
+        s = self._state
+        flat = {k: s[k] for k in _STATE_KEYS}
+        flat["params"] = {k: s["params", k] for k in PARAM_KEYS}
+        return flat
+
+    def _transition(
+        self, action: torch.Tensor, s: dict[str, Any], difficulty: torch.Tensor
+    ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+        """One step for all N trucks as pure tensor ops (the part ``env.compile`` compiles).
+
+        Args:
+            action: ``[N, 2]`` raw actions (may hold NaN/inf, which are zeroed and flagged).
+            s: state from :meth:`_flat_state`.
+            difficulty: ``[N]`` curriculum difficulty.
+
+        Returns:
+            ``(new_state, out)``: updated state entries ``{key: [N]...}`` and the step output
+            ``{key: [N, ...]}`` (observation, reward terms, flags, done signals).
+        """
+        cfg, w = self.config, self.config.reward
         finite = torch.isfinite(action).all(-1)
-        if cfg.nonfinite_action == "error" and not bool(finite.all()):
-            bad = (~finite).nonzero().squeeze(-1).tolist()
-            raise ValueError(f"non-finite action for env(s) {bad}: {action[~finite].tolist()}")
         action = torch.where(finite[:, None], action, torch.zeros_like(action)).clamp(-1.0, 1.0)
         params = s["params"]
         ctrl = self.control.step(action, {k: s[k] for k in CONTROL_KEYS}, params)
@@ -372,7 +410,7 @@ class TruckEnv(EnvBase):
         err = self._errors(pose, s["goal"])
         step_count = s["step_count"] + 1
 
-        tol_pos, tol_ang = self.tolerances()
+        tol_pos, tol_ang = self._tolerances(difficulty)
         failed = collision | jack
         success = (
             (err["pos_error"] <= tol_pos)
@@ -397,25 +435,20 @@ class TruckEnv(EnvBase):
         }
         reward = torch.stack(list(terms.values())).sum(0)
 
-        s["pose"] = pose
-        s["step_count"] = step_count
-        for k in CONTROL_KEYS:
-            s[k] = ctrl[k]
-        s.update(err)
-
-        out = self._observe()
-        out.update({k: v[:, None] for k, v in terms.items()})
+        new = {"pose": pose, "step_count": step_count, **ctrl, **err}
+        out = {k: v[:, None] for k, v in terms.items()}
         out.update(
             reward=reward[:, None],
             success=success[:, None],
             collision=collision[:, None],
             jackknife=jack[:, None],
             action_nonfinite=~finite[:, None],
-            done=terminated[:, None] | truncated[:, None],
+            done=(terminated | truncated)[:, None],
             terminated=terminated[:, None],
             truncated=truncated[:, None],
         )
-        return out
+        out.update(self._features({**s, **new}, difficulty))
+        return new, out
 
     # ------------------------------------------------------------------ observation
     @staticmethod
@@ -440,8 +473,16 @@ class TruckEnv(EnvBase):
         offset = torch.stack((ahead, torch.zeros_like(ahead)), dim=-1)
         return pose[:, :2] + rotate(offset, pose[:, 2])
 
-    def _observe(self) -> TensorDict:
-        s, cfg = self._state, self.config
+    def _scan(self, pose: torch.Tensor, params: Any, segments, mask) -> torch.Tensor:
+        """LiDAR ranges ``[N, R]`` [m] from the tractor centre."""
+        lidar = self.config.lidar
+        origin = self.sensor_origin(pose, params)
+        return lidar_scan(
+            origin, pose[:, 2], segments, mask, self.rel_angles, lidar.max_range, lidar.method
+        )
+
+    def _features(self, s: dict[str, Any], difficulty: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Observation entries ``{key: [N, ...]}`` of the module docstring from state ``s``."""
         pose, goal, p = s["pose"], s["goal"], s["params"]
         theta, phi = pose[:, 2], pose[:, 3]
         goal_local = to_local(goal[:, None, :2], pose[:, :2], theta)[:, 0] / GOAL_SCALE
@@ -458,39 +499,22 @@ class TruckEnv(EnvBase):
             ),
             dim=-1,
         )
-        geometry = normalized_params(p, cfg.vehicle)[:, self._param_index]
-        obs = torch.cat(
-            (
-                goal_local,
-                torch.stack(
-                    (d_tr.sin(), d_tr.cos(), d_tl.sin(), d_tl.cos(), phi.sin(), phi.cos()), -1
-                ),
-                motion,
-                geometry,
-            ),
-            dim=-1,
+        geometry = normalized_params(p, self.config.vehicle)[:, self._param_index]
+        angles = torch.stack(
+            (d_tr.sin(), d_tr.cos(), d_tl.sin(), d_tl.cos(), phi.sin(), phi.cos()), -1
         )
-        ranges = lidar_scan(
-            self.sensor_origin(pose, p),
-            theta,
-            s["segments"],
-            s["mask"],
-            self.rel_angles,
-            cfg.lidar.max_range,
-            method=cfg.lidar.method,
-        )
-        col = lambda x: x[:, None]  # noqa: E731
-        return TensorDict(
-            {
-                "observation": obs,
-                "lidar": ranges / cfg.lidar.max_range,
-                **{k: col(s[k]) for k in ERROR_KEYS},
-                "step_count": col(s["step_count"]),
-                "difficulty": col(self._difficulty.clone()),
-            },
-            batch_size=[self.num_envs],
-            device=self.device,
-        )
+        ranges = self._scan(pose, p, s["segments"], s["mask"])
+        return {
+            "observation": torch.cat((goal_local, angles, motion, geometry), dim=-1),
+            "lidar": ranges / self.config.lidar.max_range,
+            **{k: s[k][:, None] for k in ERROR_KEYS},
+            "step_count": s["step_count"][:, None],
+            "difficulty": difficulty[:, None].clone(),
+        }
+
+    def _observe(self) -> TensorDict:
+        out = self._features_fn(self._flat_state(), self._difficulty)
+        return TensorDict(out, batch_size=[self.num_envs], device=self.device)
 
     # ------------------------------------------------------------------ rendering
     def render_frame(self, index: int = 0, **draw_kwargs) -> np.ndarray:
@@ -505,15 +529,7 @@ class TruckEnv(EnvBase):
         s = self._state[index : index + 1]
         tractor, trailer, _ = truck_corners(s["pose"], s["params"])
         origin = self.sensor_origin(s["pose"], s["params"])
-        ranges = lidar_scan(
-            origin,
-            s["pose"][:, 2],
-            s["segments"],
-            s["mask"],
-            self.rel_angles,
-            self.config.lidar.max_range,
-            method=self.config.lidar.method,
-        )
+        ranges = self._scan(s["pose"], s["params"], s["segments"], s["mask"])
         tol_pos, tol_ang = self.tolerances()
         return draw_scene(
             s["segments"][0].cpu(),
