@@ -309,7 +309,8 @@ def train(cfg: DictConfig, run_dir: Path) -> Counters:
     )
 
     # Create logger
-    logger = RunLogger(run_dir, purge_step=counters.frames if state else None)
+    # steps up to the checkpoint's frame count were logged before it was written: keep them
+    logger = RunLogger(run_dir, purge_step=counters.frames + 1 if state else None)
     if not state:
         logger.config(cfg_yaml, OmegaConf.to_container(cfg, resolve=True), hparam_metrics(0, 0))
     print(f"run dir: {run_dir}; batch {tc.frames_per_batch:,} frames/iteration")

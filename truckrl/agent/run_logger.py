@@ -1,7 +1,7 @@
 """TensorBoard output of a training run: scalars, the config, hyper-parameters and videos.
 
 Events go to ``<run_dir>/tb``; the global step is the number of environment frames. A resumed
-run opens the same directory with ``purge_step`` = the checkpoint's frame count, so TensorBoard
+run opens the same directory with ``purge_step`` = the checkpoint's frame count + 1, so TensorBoard
 drops whatever the killed run logged after its last checkpoint and the curves continue seamlessly.
 
 Videos: TensorBoard's ``add_video`` needs ``moviepy``, which is not a dependency. Each rollout is

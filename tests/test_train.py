@@ -1,0 +1,174 @@
+"""End-to-end runs of ``python -m truckrl.train`` with tiny settings (real env, real entry point)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from truckrl.agent.checkpoint import load_checkpoint
+from truckrl.train import CollectorConfig, TrainConfig, make_env, set_difficulty
+
+ROOT = Path(__file__).resolve().parent.parent
+BATCH = 16 * 16  # env.num_envs x collector.steps_per_env below
+TINY = [
+    "env.num_envs=16",
+    "collector.steps_per_env=16",
+    "ppo.num_minibatches=2",
+    "ppo.num_epochs=1",
+    "log.video_interval=0",
+    "log.progress_bar=false",
+]
+
+
+def train(*args: str, check: bool = True, multirun: bool = False) -> subprocess.CompletedProcess:
+    flags = ["--multirun"] if multirun else []
+    proc = subprocess.run(
+        [sys.executable, "-m", "truckrl.train", *flags, *TINY, *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    if check:
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+    return proc
+
+
+def scalar_steps(run_dir: Path, tag: str = "perf/fps") -> list[int]:
+    acc = EventAccumulator(str(run_dir / "tb"), purge_orphaned_data=True)
+    acc.Reload()
+    return [e.step for e in acc.Scalars(tag)]
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("run")
+    train(f"total_frames={4 * BATCH}", "checkpoint.interval=2", f"hydra.run.dir={d}")
+    return d
+
+
+def test_run_writes_events_config_and_checkpoint(run_dir):
+    state = load_checkpoint(run_dir)
+    assert state["counters"]["iteration"] == 4
+    assert state["counters"]["frames"] == 4 * BATCH
+    assert state["num_beams"] == 16 and state["num_obs"] == 26
+    assert "ppo:" in state["config"]
+    assert scalar_steps(run_dir) == [BATCH * i for i in range(1, 5)]
+    acc = EventAccumulator(str(run_dir / "tb"))
+    acc.Reload()
+    tags = set(acc.Tags()["scalars"])
+    expected = {
+        "loss/objective",
+        "loss/critic",
+        "loss/entropy",
+        "train/kl",
+        "train/lr",
+        "train/action_std",
+        "episode/success_ema",
+        "curriculum/difficulty",
+        "curriculum/tolerance_position_m",
+        "curriculum/tolerance_heading_deg",
+        "reward_step/r_progress",
+        "perf/fps_collect",
+        "perf/learn_s",
+    }
+    assert expected <= tags, expected - tags
+    tol = acc.Scalars("curriculum/tolerance_position_m")[0].value
+    assert tol == pytest.approx(30.0)  # paper: 30 m at difficulty 0
+    assert (run_dir / ".hydra" / "config.yaml").is_file()
+
+
+def test_resume_continues_counters_and_steps(run_dir, tmp_path):
+    proc = train(f"resume={run_dir}", f"total_frames={6 * BATCH}", f"hydra.run.dir={tmp_path}")
+    assert "resumed" in proc.stdout
+    state = load_checkpoint(run_dir / "checkpoints" / "last.pt")
+    assert state["counters"]["iteration"] == 6
+    assert state["counters"]["frames"] == 6 * BATCH
+    assert scalar_steps(run_dir) == [BATCH * i for i in range(1, 7)]
+
+
+def test_sweep_runs_two_jobs(tmp_path):
+    sweep = tmp_path / "sweep"
+    train("ppo.lr=1e-4,3e-4", f"total_frames={BATCH}", f"hydra.sweep.dir={sweep}", multirun=True)
+    for job, lr in (("0", 1e-4), ("1", 3e-4)):
+        state = load_checkpoint(sweep / job)
+        assert state["counters"]["frames"] == BATCH
+        assert f"lr: {lr}" in state["config"]
+
+
+def test_sigkill_then_resume_loses_nothing_before_the_checkpoint(tmp_path):
+    run = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "truckrl.train", *TINY, "total_frames=10000000"]
+    cmd += ["checkpoint.interval=1", f"hydra.run.dir={run}"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            last = run / "checkpoints" / "last.pt"
+            if last.is_file() and load_checkpoint(last)["counters"]["iteration"] >= 2:
+                break
+            time.sleep(0.2)
+        else:
+            pytest.fail("no checkpoint within 120 s")
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    saved = load_checkpoint(run)  # the atomic write left a readable file
+    k = saved["counters"]["iteration"]
+    assert saved["counters"]["frames"] == k * BATCH
+    train(f"resume={run}", f"total_frames={(k + 1) * BATCH}", f"hydra.run.dir={tmp_path / 'r'}")
+    after = load_checkpoint(run)
+    assert after["counters"]["iteration"] == k + 1
+    assert after["counters"]["frames"] == (k + 1) * BATCH
+    assert after["counters"]["wall_time_s"] > saved["counters"]["wall_time_s"]
+    # events logged after the checkpoint by the killed process are purged: one value per step
+    assert scalar_steps(run) == [BATCH * i for i in range(1, k + 2)]
+
+
+@pytest.mark.parametrize(
+    ("override", "field"),
+    [("ppo.num_minibatches=7", "ppo.num_minibatches"), ("ppo.lr=-1e-4", "ppo.lr")],
+)
+def test_bad_config_is_one_clear_line(override, field, tmp_path):
+    proc = train(override, f"hydra.run.dir={tmp_path}", check=False)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr
+    assert proc.stderr.strip().startswith("ConfigError:") and field in proc.stderr
+    assert not (tmp_path / "checkpoints").exists()
+
+
+def test_cfg_job_prints_the_composed_config():
+    proc = subprocess.run(
+        [sys.executable, "-m", "truckrl.train", "ppo=paper", "--cfg", "job"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    # the paper preset: 24 envs x 512 steps, 96 minibatches, lr 1e-4
+    assert "num_envs: 24" in proc.stdout and "steps_per_env: 512" in proc.stdout
+    assert "num_minibatches: 96" in proc.stdout and "lr: 0.0001" in proc.stdout
+
+
+def test_difficulty_reaches_every_parallel_worker():
+    tc = TrainConfig(num_envs=2, collector=CollectorConfig(workers=2, steps_per_env=2))
+    env = make_env(tc, iteration=0)
+    try:
+        pos, deg = set_difficulty(env, 1.5)
+        assert pos == pytest.approx(30.0 * 2**-1.5)  # paper: 30 m x 2^-d
+        assert deg == pytest.approx(60.0 * 2**-1.5)  # paper: 60 deg x 2^-d
+        td = env.rollout(2, break_when_any_done=False)
+        assert td.batch_size == (2, 2, 2)
+        assert torch.all(td["next", "difficulty"] == 1.5)
+        assert not torch.equal(td["observation"][0], td["observation"][1])  # workers differ
+    finally:
+        env.close()
