@@ -76,7 +76,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from truckrl.sim.collision import contour_collides
+from truckrl.sim.collision import truck_collides
 from truckrl.sim.control import CONTROL_KEYS, Control, ControlConfig
 from truckrl.sim.geometry import rotate, to_local, wrap_angle
 from truckrl.sim.lidar import LidarConfig, beam_angles, lidar_scan
@@ -90,7 +90,6 @@ from truckrl.sim.vehicle import (
     normalized_params,
     sample_vehicle_params,
     truck_corners,
-    vehicle_outline,
 )
 
 NUM_FEATURES = 26  # paper: "the numeric block consists of 26 scalars"
@@ -405,7 +404,7 @@ class TruckEnv(EnvBase):
         pose, _ = kinematics_step(
             s["pose"], ctrl["speed"], ctrl["steer"], params, cfg.dt, cfg.substeps
         )
-        collision = contour_collides(vehicle_outline(pose, params), s["segments"], s["mask"])
+        collision = truck_collides(pose, params, s["segments"], s["mask"])
         jack = jackknifed(pose, params)
         err = self._errors(pose, s["goal"])
         step_count = s["step_count"] + 1

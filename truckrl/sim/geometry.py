@@ -218,3 +218,56 @@ def ray_segment_distance(
     if mask is not None:
         dist = dist.masked_fill(~mask.unsqueeze(-2), math.inf)
     return dist
+
+
+def segment_box_overlap(
+    segments: Tensor,
+    cx: Tensor,
+    cy: Tensor,
+    heading: Tensor,
+    front: Tensor,
+    rear: Tensor,
+    half_width: Tensor,
+    mask: Tensor | None = None,
+) -> Tensor:
+    """Whether each segment shares a point with a filled oriented rectangle (Liang-Barsky clip).
+
+    The rectangle is the one of :func:`rectangle_corners`: ``front`` metres ahead of and ``rear``
+    behind ``(cx, cy)`` along ``heading`` [rad], ``half_width`` to each side. Unlike a contour test
+    (:func:`segments_intersect` against the 4 edges) a segment lying wholly inside counts too, and
+    it costs one clip per segment instead of four edge pairs.
+
+    Args:
+        segments: ``[..., E, 4]`` [m].
+        cx, cy, heading, front, rear, half_width: ``[...]`` rectangle parameters.
+        mask: ``[..., E]`` validity or ``None``; padding gives ``False``.
+
+    Returns:
+        ``[..., E]`` bool (closed sets: touching counts).
+    """
+    ends = to_local(
+        segments.unflatten(-1, (2, 2)).flatten(-3, -2), torch.stack((cx, cy), -1), heading
+    )
+    x0, y0 = ends[..., 0::2, 0], ends[..., 0::2, 1]  # [..., E]
+    dx, dy = ends[..., 1::2, 0] - x0, ends[..., 1::2, 1] - y0
+    eps = 1e-6  # [m] closed-set slack, as in segments_intersect
+
+    def slab(p0: Tensor, d: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tensor]:
+        # parameter interval [t_in, t_out] of the segment inside lo - eps <= p <= hi + eps
+        lo, hi = lo.unsqueeze(-1) - eps, hi.unsqueeze(-1) + eps
+        flat = d.abs() <= 1e-9
+        safe = torch.where(flat, torch.ones_like(d), d)
+        t1, t2 = (lo - p0) / safe, (hi - p0) / safe
+        inside = (p0 >= lo) & (p0 <= hi)
+        t_in = torch.where(flat, torch.where(inside, -math.inf, math.inf), torch.minimum(t1, t2))
+        t_out = torch.where(flat, torch.where(inside, math.inf, -math.inf), torch.maximum(t1, t2))
+        return t_in, t_out
+
+    tx_in, tx_out = slab(x0, dx, -rear, front)
+    ty_in, ty_out = slab(y0, dy, -half_width, half_width)
+    t_in = torch.maximum(torch.maximum(tx_in, ty_in), torch.zeros_like(tx_in))
+    t_out = torch.minimum(torch.minimum(tx_out, ty_out), torch.ones_like(tx_out))
+    hit = t_in <= t_out
+    if mask is not None:
+        hit = hit & mask
+    return hit

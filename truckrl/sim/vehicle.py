@@ -58,7 +58,7 @@ from torch import Tensor
 from truckrl.sim.geometry import (
     rectangle_corners,
     rectangle_segments,
-    segments_intersect,
+    segment_box_overlap,
     wrap_angle,
 )
 from truckrl.sim.validation import ConfigError, check_interval, check_range
@@ -230,6 +230,15 @@ def truck_segments(pose: Tensor, params: dict[str, Tensor]) -> tuple[Tensor, Ten
     return _bodies(pose, params, rectangle_segments)
 
 
+def truck_boxes(pose: Tensor, params: dict[str, Tensor]) -> tuple[tuple[Tensor, ...], ...]:
+    """Tractor, trailer and cab as rectangle parameters for :func:`geometry.segment_box_overlap`.
+
+    Returns:
+        Three tuples ``(cx, cy, heading, front, rear, half_width)``, each entry ``[N]``.
+    """
+    return _bodies(pose, params, lambda *box: box)
+
+
 def vehicle_outline(pose: Tensor, params: dict[str, Tensor]) -> Tensor:
     """Tractor and trailer contours concatenated: ``[N, 8, 4]`` segments [m]."""
     tractor, trailer, _ = truck_segments(pose, params)
@@ -306,8 +315,9 @@ def kinematics_step(
 def jackknifed(pose: Tensor, params: dict[str, Tensor]) -> Tensor:
     """Whether the trailer is jack-knifed.
 
-    True where the trailer contour touches the cab contour (:func:`truck_segments`), or the
-    articulation is at its stop: ``|phi| >= max_articulation - ARTICULATION_STOP_EPS``.
+    True where the trailer contour touches the cab (any trailer edge meets the filled cab
+    rectangle, :func:`truck_boxes`), or the articulation is at its stop:
+    ``|phi| >= max_articulation - ARTICULATION_STOP_EPS``.
 
     Args:
         pose: ``[N, 4]`` = ``(x, y, theta, phi)`` [m, m, rad, rad].
@@ -316,8 +326,9 @@ def jackknifed(pose: Tensor, params: dict[str, Tensor]) -> Tensor:
     Returns:
         ``[N]`` bool.
     """
-    _, trailer, cab = truck_segments(pose, params)
-    touching = segments_intersect(trailer, cab).flatten(-2).any(-1)
+    _, trailer, _ = truck_segments(pose, params)
+    _, _, cab = truck_boxes(pose, params)
+    touching = segment_box_overlap(trailer, *cab).any(-1)
     at_stop = pose[..., 3].abs() >= params["max_articulation"] - ARTICULATION_STOP_EPS
     return touching | at_stop
 
