@@ -91,3 +91,22 @@ def test_bad_curriculum_config_names_field():
         CurriculumConfig(threshold=1.5)
     with pytest.raises(ConfigError, match="curriculum.mode"):
         CurriculumConfig(mode="sometimes")
+
+
+def test_promotions_halve_env_tolerances_every_difficulty_level():
+    from truckrl.env import TruckEnv
+
+    env = TruckEnv(num_envs=2, seed=0)
+    cur = Curriculum(CurriculumConfig())
+    streak = torch.ones(first_crossing(), dtype=torch.bool)
+    for promotions in range(1, 13):
+        assert cur.update(streak)
+        env.set_difficulty(cur.difficulty)
+        pos, ang = env.tolerances()
+        d = 0.5 * promotions  # paper: +0.5 per promotion
+        assert cur.difficulty == d
+        torch.testing.assert_close(pos, torch.full((2,), 30.0 * 2**-d))  # paper: 30 m x 2^-d
+        torch.testing.assert_close(ang, torch.full((2,), math.radians(60.0) * 2**-d))
+    # paper: difficulty 6 -> 0.47 m and 0.94 deg
+    assert float(pos[0]) == pytest.approx(0.47, abs=0.005)
+    assert math.degrees(float(ang[0])) == pytest.approx(0.94, abs=0.005)
