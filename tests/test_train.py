@@ -97,11 +97,20 @@ def test_resume_continues_counters_and_steps(run_dir, tmp_path):
 
 def test_sweep_runs_two_jobs(tmp_path):
     sweep = tmp_path / "sweep"
-    train("ppo.lr=1e-4,3e-4", f"total_frames={BATCH}", f"hydra.sweep.dir={sweep}", multirun=True)
+    videos = ["log.video_interval=1", "log.video_steps=5"]  # last override wins over TINY's
+    train(
+        "ppo.lr=1e-4,3e-4",
+        f"total_frames={BATCH}",
+        f"hydra.sweep.dir={sweep}",
+        *videos,
+        multirun=True,
+    )
     for job, lr in (("0", 1e-4), ("1", 3e-4)):
         state = load_checkpoint(sweep / job)
         assert state["counters"]["frames"] == BATCH
         assert f"lr: {lr}" in state["config"]
+        video = sweep / job / "videos" / "iter_000001.mp4"
+        assert video.is_file() and video.stat().st_size > 0
 
 
 def test_sigkill_then_resume_loses_nothing_before_the_checkpoint(tmp_path):

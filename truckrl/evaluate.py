@@ -81,14 +81,14 @@ def print_table(s: dict) -> None:
         f"success {s['success_rate']:.3f}  collision {s['collision_rate']:.3f}  "
         f"jackknife {s['jackknife_rate']:.3f}  timeout {s['timeout_rate']:.3f}"
     )
-    print(f"{'final error':<24}{'mean':>10}{'p95':>10}")
+    print(f"{'final error':<30}{'mean':>10}{'p95':>10}")
     for k, unit in (
         ("pos_error", "m"),
         ("tractor_heading_error", "deg"),
         ("trailer_heading_error", "deg"),
     ):
         name = f"{k} [{unit}]"
-        print(f"{name:<24}{s[f'{k}_{unit}_mean']:>10.3f}{s[f'{k}_{unit}_p95']:>10.3f}")
+        print(f"{name:<30}{s[f'{k}_{unit}_mean']:>10.3f}{s[f'{k}_{unit}_p95']:>10.3f}")
 
 
 @hydra.main(version_base=None, config_path=CONFIG_PATH, config_name="evaluate")
