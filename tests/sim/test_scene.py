@@ -257,45 +257,50 @@ def obstacle_edges(b: SceneBatch):
     return edges, b.mask[:, CURB_SLOTS:].view(n, -1, 4)[..., 0]
 
 
+def near_pair_distances(a, b, a_mask, b_mask, reach: float, pairs=None) -> torch.Tensor:
+    """Distances [P] between the quads ``a [N, A, 4, 2]`` and ``b [N, B, 4, 2]`` (corners) of every
+    valid pair (restricted to ``pairs [A, B]`` if given) whose bounding circles come within
+    ``reach``; the other valid pairs are farther than ``reach`` apart by the circle bound, so
+    only these need the exact segment distance."""
+    ca, cb = a.mean(2), b.mean(2)
+    ra = (a - ca.unsqueeze(2)).norm(dim=-1).amax(-1)
+    rb = (b - cb.unsqueeze(2)).norm(dim=-1).amax(-1)
+    gap = (ca.unsqueeze(2) - cb.unsqueeze(1)).norm(dim=-1) - ra.unsqueeze(2) - rb.unsqueeze(1)
+    near = (gap < reach) & a_mask.unsqueeze(2) & b_mask.unsqueeze(1)
+    if pairs is not None:
+        near &= pairs
+    n, i, j = near.nonzero(as_tuple=True)
+    ea, eb = polygon_segments(a[n, i]), polygon_segments(b[n, j])  # [P, 4, 4]
+    return segment_segment_distance(ea, eb).flatten(1).amin(-1)
+
+
+def footprints(b: SceneBatch, params) -> torch.Tensor:
+    """Tractor and trailer corners of start and goal: [N, 4, 4, 2]."""
+    bodies = [truck_corners(pose4(p), params)[:2] for p in (b.start, b.goal)]
+    return torch.stack([q for pair in bodies for q in pair], 1)
+
+
 def test_obstacles_keep_clear_of_start_and_goal(batch):
     cfg, b, params = batch
     edges, kept = obstacle_edges(b)
-    k = edges.shape[1]
-    for chunk in torch.arange(len(b)).split(2500):
-        outline = torch.cat(
-            [
-                vehicle_outline(pose4(p[chunk]), {a: v[chunk] for a, v in params.items()})
-                for p in (b.start, b.goal)
-            ],
-            1,
-        )
-        dist = (
-            segment_segment_distance(edges[chunk].flatten(1, 2), outline)
-            .view(len(chunk), k, -1)
-            .amin(-1)
-        )
-        assert (dist[kept[chunk]] >= cfg.obstacle_pose_clearance - TOL).all()
-        # neither contains the other
-        sub = {a: v[chunk] for a, v in params.items()}
-        feet = torch.cat(
-            [torch.cat(truck_corners(pose4(p[chunk]), sub)[:2], 1) for p in (b.start, b.goal)], 1
-        )
-        quads = feet.view(len(chunk), -1, 4, 2)
-        obs = edges[chunk][..., :2]  # [M, K, 4, 2] corners, counter-clockwise
-        assert not (inside_convex(feet, obs) & kept[chunk].unsqueeze(1)).any()
-        assert not (inside_convex(obs.mean(2), quads) & kept[chunk].unsqueeze(-1)).any()
+    obs = edges[..., :2]  # [N, K, 4, 2] corners, counter-clockwise
+    feet = footprints(b, params)
+    everywhere = torch.ones(feet.shape[:2], dtype=torch.bool)
+    dist = near_pair_distances(obs, feet, kept, everywhere, cfg.obstacle_pose_clearance)
+    assert (dist >= cfg.obstacle_pose_clearance - TOL).all()
+    # neither contains the other
+    assert not (inside_convex(feet.flatten(1, 2), obs) & kept.unsqueeze(1)).any()
+    assert not (inside_convex(obs.mean(2), feet) & kept.unsqueeze(-1)).any()
 
 
 def test_obstacles_keep_clear_of_each_other_and_of_the_curbs(batch):
     cfg, b, _ = batch
     edges, kept = obstacle_edges(b)
-    sub = torch.arange(min(len(b), 2000))
-    e, m = edges[sub], kept[sub]
-    k = e.shape[1]
-    pair = segment_segment_distance(e.flatten(1, 2), e.flatten(1, 2)).view(len(sub), k, 4, k, 4)
-    pair = pair.amin((2, 4))
-    both = m.unsqueeze(1) & m.unsqueeze(2) & ~torch.eye(k, dtype=torch.bool)
-    assert (pair[both] >= cfg.obstacle_min_gap - TOL).all()
+    obs = edges[..., :2]
+    k = obs.shape[1]
+    upper = torch.ones(k, k, dtype=torch.bool).triu(1)  # each pair once, never with itself
+    dist = near_pair_distances(obs, obs, kept, kept, cfg.obstacle_min_gap, upper)
+    assert (dist >= cfg.obstacle_min_gap - TOL).all()
     # an obstacle never touches a curb
     hit = segments_intersect(
         edges.flatten(1, 2),
