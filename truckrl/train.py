@@ -350,7 +350,8 @@ def train(cfg: DictConfig, run_dir: Path) -> Counters:
 
             # Episode statistics and curriculum
             env_difficulty = batch["next", "difficulty"][..., -1, :]
-            if not torch.isclose(env_difficulty, torch.tensor(curriculum.difficulty)).all():
+            expected = torch.full_like(env_difficulty, curriculum.difficulty)
+            if not torch.isclose(env_difficulty, expected).all():
                 raise RuntimeError(
                     f"difficulty {curriculum.difficulty} did not reach every environment worker"
                 )
