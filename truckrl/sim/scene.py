@@ -281,6 +281,28 @@ def _lateral(width: Tensor, gap: Tensor, half_width: Tensor) -> Tensor:
     return torch.minimum(lat, 0.5 * width - half_width)
 
 
+@dataclass
+class _Roads:
+    """Both roads of every scene (road 1 is only used where the scene is a crossing)."""
+
+    centre: Tensor  # [n, 2] scene centre P: both centrelines pass through it
+    heading: Tensor  # [n, 2]
+    width: Tensor  # [n, 2]
+    dirs: Tensor  # [n, 2, 2] unit direction d_r
+    normals: Tensor  # [n, 2, 2] left normal n_r
+    corners: Tensor  # [n, 4, 2] intersection parallelogram, counter-clockwise
+    extent: Tensor  # [n, 2] e_r, the parallelogram's extent along d_r from P
+
+
+@dataclass
+class _Extents:
+    """Truck footprint at articulation 0 relative to the tractor rear axle [m], each ``[n]``."""
+
+    front: Tensor  # ahead of the axle (tractor front bumper)
+    rear: Tensor  # behind the axle (tractor or trailer rear end, whichever is farther)
+    half_width: Tensor  # half the wider body
+
+
 def generate_scenes(
     cfg: SceneConfig,
     params: dict[str, Tensor],
@@ -307,21 +329,65 @@ def generate_scenes(
         dev = next(iter(params.values())).device
     p = {k: v.to(dev, torch.float32) for k, v in params.items()}
     n = p["wheelbase"].shape[0]
-    L = cfg.half_extent
 
     def rand(*shape: int) -> Tensor:
         return torch.rand(*shape, generator=generator, device=dev)
 
-    # Roads -------------------------------------------------------------------------------------
+    ext = _Extents(
+        front=p["wheelbase"] + p["front_overhang"],
+        rear=torch.maximum(
+            p["rear_overhang"],
+            p["kingpin_offset"] + p["trailer_wheelbase"] + p["trailer_rear_overhang"],
+        ),
+        half_width=0.5 * torch.maximum(p["tractor_width"], p["trailer_width"]),
+    )
     crossing = rand(n) < cfg.crossing_prob
+    roads = _sample_roads(cfg, rand, n, dev)
+    ok, cross_start, cross_goal = _crossing_poses(cfg, rand, roads, ext)
+    crossing = crossing & ok
+    straight_start, straight_goal = _straight_poses(cfg, rand, roads, ext)
+    c = crossing.unsqueeze(-1)
+    start = torch.where(c, cross_start, straight_start)  # [n, 4]: x, y, heading, road
+    goal = torch.where(c, cross_goal, straight_goal)
+    curbs, curb_mask = _curbs(roads, crossing, cfg.half_extent)
+    roads.corners = roads.corners * crossing.view(n, 1, 1)
+    obstacles, obstacle_mask = _obstacles(cfg, rand, roads, crossing, start, goal, ext)
+
+    segments = torch.cat((curbs, obstacles), dim=1)
+    mask = torch.cat((curb_mask, obstacle_mask), dim=1)
+    kind = torch.full((n, cfg.num_segments), KIND_OBSTACLE, dtype=torch.int8, device=dev)
+    kind[:, :CURB_SLOTS] = KIND_CURB
+    road_mask = torch.stack((torch.ones_like(crossing), crossing), dim=-1)
+    road_table = torch.cat(
+        (
+            roads.centre.unsqueeze(1).expand(n, 2, 2),
+            roads.heading.unsqueeze(-1),
+            roads.width.unsqueeze(-1),
+        ),
+        -1,
+    )
+    return SceneBatch(
+        segments=segments * mask.unsqueeze(-1),
+        mask=mask,
+        kind=kind,
+        start=start[:, :3],
+        goal=goal[:, :3],
+        crossing=crossing,
+        intersection=roads.corners,
+        roads=road_table * road_mask.unsqueeze(-1),
+        road_mask=road_mask,
+    )
+
+
+def _sample_roads(cfg: SceneConfig, rand, n: int, dev) -> _Roads:
+    """Random centre, headings and widths, and the crossing parallelogram of every scene."""
     centre = (2.0 * rand(n, 2) - 1.0) * cfg.center_jitter
     h0 = wrap_angle(2.0 * math.pi * rand(n))
     heading = torch.stack((h0, wrap_angle(h0 + _uniform(cfg.crossing_angle, rand(n)))), dim=-1)
-    width = _uniform(cfg.road_width, rand(n, 2))  # [n, 2]
-    dirs = torch.stack((torch.cos(heading), torch.sin(heading)), dim=-1)  # [n, 2, 2]
+    width = _uniform(cfg.road_width, rand(n, 2))
+    dirs = torch.stack((torch.cos(heading), torch.sin(heading)), dim=-1)
     normals = torch.stack((-dirs[..., 1], dirs[..., 0]), dim=-1)
-
-    # Parallelogram corners: offset o0 from road 0 and o1 from road 1, i.e. n0.x = o0, n1.x = o1.
+    # Corner with offsets (o0, o1) from the two centrelines: solve n0.x = o0, n1.x = o1.
     n0, n1 = normals[:, 0], normals[:, 1]
     det = (n0[:, 0] * n1[:, 1] - n0[:, 1] * n1[:, 0]).unsqueeze(-1)  # sin(angle) > 0
     signs = torch.tensor([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]], device=dev)
@@ -333,28 +399,30 @@ def generate_scenes(
             (-n1[:, 0:1] * o0 + n0[:, 0:1] * o1) / det,
         ),
         dim=-1,
-    )  # [n, 4, 2] counter-clockwise
+    )  # counter-clockwise: the map x -> (n0.x, n1.x) keeps orientation (det > 0)
     along = torch.einsum("nkc,nrc->nrk", corners - centre.unsqueeze(1), dirs)  # [n, 2, 4]
-    extent = along.abs().amax(-1)  # [n, 2] e_r
+    return _Roads(centre, heading, width, dirs, normals, corners, along.abs().amax(-1))
 
-    # Start / goal ------------------------------------------------------------------------------
-    front = p["wheelbase"] + p["front_overhang"]
-    rear = torch.maximum(
-        p["rear_overhang"],
-        p["kingpin_offset"] + p["trailer_wheelbase"] + p["trailer_rear_overhang"],
-    )
-    half_w = 0.5 * torch.maximum(p["tractor_width"], p["trailer_width"])
-    reach = L - cfg.curb_reach
-    margin = cfg.pose_intersection_margin
 
-    # Crossing: rounds of rejection on the goal's arm distance.
+def _pose(x: Tensor, u: Tensor, road: Tensor) -> Tensor:
+    """``[n, 4]``: position, heading of direction ``u``, and road index (as float)."""
+    return torch.cat((x, torch.atan2(u[:, 1:], u[:, :1]), road.unsqueeze(-1).float()), dim=-1)
+
+
+def _crossing_poses(
+    cfg: SceneConfig, rand, roads: _Roads, ext: _Extents
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Start on an approach arm, goal on another arm, by ``cfg.rounds`` rounds of rejection.
+
+    Returns:
+        ``ok [n]`` (a valid pair was found), start and goal ``[n, 4]`` (see :func:`_pose`).
+    """
+    n, dev = roads.centre.shape[0], roads.centre.device
+    L, reach = cfg.half_extent, cfg.half_extent - cfg.curb_reach
+    margin, centre = cfg.pose_intersection_margin, roads.centre
     ok = torch.zeros(n, dtype=torch.bool, device=dev)
-    x_s = torch.zeros(n, 2, device=dev)
-    x_g = torch.zeros(n, 2, device=dev)
-    u_s = torch.zeros(n, 2, device=dev)
-    u_g = torch.zeros(n, 2, device=dev)
-    road_s = torch.zeros(n, dtype=torch.long, device=dev)
-    road_g = torch.zeros(n, dtype=torch.long, device=dev)
+    start = torch.zeros(n, 4, device=dev)
+    goal = torch.zeros(n, 4, device=dev)
     for _ in range(cfg.rounds):
         r = rand(n, 6)
         rs = (r[:, 0] < 0.5).long()
@@ -363,14 +431,15 @@ def generate_scenes(
         rg = torch.where(choice == 0, rs, 1 - rs)
         sig_g = torch.where(choice == 0, -sig_s, torch.where(choice == 1, 1.0, -1.0))
         gaps = _uniform(cfg.shoulder_gap, rand(n, 2))
-        us = -sig_s.unsqueeze(-1) * _pick(dirs, rs)  # towards P
-        ug = sig_g.unsqueeze(-1) * _pick(dirs, rg)  # away from P
-        lat_s = _lateral(_pick(width, rs), gaps[:, 0], half_w)
-        lat_g = _lateral(_pick(width, rg), gaps[:, 1], half_w)
-        as_lo = _pick(extent, rs) + margin + front
-        as_hi = torch.clamp(L - rear, max=reach)
-        ag_lo = _pick(extent, rg) + margin + rear
-        ag_hi = torch.clamp(L - front, max=reach)
+        us = -sig_s.unsqueeze(-1) * _pick(roads.dirs, rs)  # towards P
+        ug = sig_g.unsqueeze(-1) * _pick(roads.dirs, rg)  # away from P
+        lat_s = _lateral(_pick(roads.width, rs), gaps[:, 0], ext.half_width)
+        lat_g = _lateral(_pick(roads.width, rg), gaps[:, 1], ext.half_width)
+        # distances along the arms from P: footprints clear of the intersection and of road ends
+        as_lo = _pick(roads.extent, rs) + margin + ext.front
+        as_hi = torch.clamp(L - ext.rear, max=reach)
+        ag_lo = _pick(roads.extent, rg) + margin + ext.rear
+        ag_hi = torch.clamp(L - ext.front, max=reach)
         # goal distance: uniform over goal_distance and the distances between the nearest and
         # the farthest pose pair on these arms (all values between are reachable by continuity)
         q = centre + lat_g.unsqueeze(-1) * _right(ug)
@@ -397,50 +466,52 @@ def generate_scenes(
         disc = b * b - ((xs - q) ** 2).sum(-1) + dist * dist
         a_g = b + disc.clamp_min(0.0).sqrt()
         valid = (disc >= 0.0) & (a_g >= ag_lo) & (a_g <= ag_hi) & (as_lo <= as_hi) & (d_lo <= d_hi)
-        take = valid & ~ok
-        t2 = take.unsqueeze(-1)
-        x_s = torch.where(t2, xs, x_s)
-        x_g = torch.where(t2, q + a_g.unsqueeze(-1) * ug, x_g)
-        u_s = torch.where(t2, us, u_s)
-        u_g = torch.where(t2, ug, u_g)
-        road_s = torch.where(take, rs, road_s)
-        road_g = torch.where(take, rg, road_g)
+        take = (valid & ~ok).unsqueeze(-1)
+        start = torch.where(take, _pose(xs, us, rs), start)
+        goal = torch.where(take, _pose(q + a_g.unsqueeze(-1) * ug, ug, rg), goal)
         ok = ok | valid
-    crossing = crossing & ok
+    return ok, start, goal
 
-    # Straight road (also the fallback): goal ahead of the start in the same lane.
+
+def _straight_poses(cfg: SceneConfig, rand, roads: _Roads, ext: _Extents) -> tuple[Tensor, Tensor]:
+    """Start and goal ``[n, 4]`` on road 0, same lane and direction, goal ahead (valid by
+    construction: used for straight roads and as the crossing fallback)."""
+    L, reach = cfg.half_extent, cfg.half_extent - cfg.curb_reach
+    n = roads.centre.shape[0]
     r = rand(n, 5)
-    k0 = torch.where(r[:, 0] < 0.5, 1.0, -1.0)
-    us = k0.unsqueeze(-1) * dirs[:, 0]
-    lat_s = _lateral(width[:, 0], _uniform(cfg.shoulder_gap, r[:, 1]), half_w)
-    lat_g = _lateral(width[:, 0], _uniform(cfg.shoulder_gap, r[:, 2]), half_w)
+    u = torch.where(r[:, :1] < 0.5, 1.0, -1.0) * roads.dirs[:, 0]
+    lat_s = _lateral(roads.width[:, 0], _uniform(cfg.shoulder_gap, r[:, 1]), ext.half_width)
+    lat_g = _lateral(roads.width[:, 0], _uniform(cfg.shoulder_gap, r[:, 2]), ext.half_width)
     dist = _uniform(cfg.goal_distance, r[:, 3])
     ahead = (dist * dist - (lat_s - lat_g) ** 2).clamp_min(0.0).sqrt()
-    t_lo = torch.clamp(rear - L, min=-reach)
-    t_hi = torch.clamp(L - front, max=reach) - ahead
+    t_lo = torch.clamp(ext.rear - L, min=-reach)
+    t_hi = torch.clamp(L - ext.front, max=reach) - ahead
     t_s = t_lo + (t_hi - t_lo).clamp_min(0.0) * r[:, 4]
-    right = _right(us)
-    xs = centre + t_s.unsqueeze(-1) * us + lat_s.unsqueeze(-1) * right
-    xg = centre + (t_s + ahead).unsqueeze(-1) * us + lat_g.unsqueeze(-1) * right
-    c2 = crossing.unsqueeze(-1)
-    x_s = torch.where(c2, x_s, xs)
-    x_g = torch.where(c2, x_g, xg)
-    u_s = torch.where(c2, u_s, us)
-    u_g = torch.where(c2, u_g, us)
-    road_s = torch.where(crossing, road_s, 0)
-    road_g = torch.where(crossing, road_g, 0)
-    start = torch.cat((x_s, torch.atan2(u_s[:, 1:], u_s[:, :1])), dim=-1)
-    goal = torch.cat((x_g, torch.atan2(u_g[:, 1:], u_g[:, :1])), dim=-1)
+    right = _right(u)
+    xs = roads.centre + t_s.unsqueeze(-1) * u + lat_s.unsqueeze(-1) * right
+    xg = roads.centre + (t_s + ahead).unsqueeze(-1) * u + lat_g.unsqueeze(-1) * right
+    road = torch.zeros(n, dtype=torch.long, device=u.device)
+    return _pose(xs, u, road), _pose(xg, u, road)
 
-    # Curbs -------------------------------------------------------------------------------------
-    half = 0.5 * width.unsqueeze(-1)  # [n, 2, 1]
-    curb_mid = centre.view(n, 1, 1, 2) + torch.stack((-half, half), dim=2) * normals.unsqueeze(2)
-    line_a = curb_mid - L * dirs.unsqueeze(2)  # [n, road, side, 2]
-    line_b = curb_mid + L * dirs.unsqueeze(2)
-    # corner indices on each curb line: road 0 side -/+ -> (0, 3) / (1, 2); road 1 -> (0, 1) / (3, 2)
-    idx = torch.tensor([[[0, 3], [1, 2]], [[0, 1], [3, 2]]], device=dev)
-    cj = corners[:, idx]  # [n, road, side, 2 corners, 2]
-    sj = torch.einsum("nrsjc,nrc->nrsj", cj - centre.view(n, 1, 1, 1, 2), dirs)
+
+def _curbs(roads: _Roads, crossing: Tensor, half_extent: float) -> tuple[Tensor, Tensor]:
+    """Curb segments ``[n, 8, 4]`` and mask ``[n, 8]``.
+
+    Slot ``4 r + 2 side + piece``: road ``r``, curb on side ``-n_r`` (0) or ``+n_r`` (1), piece
+    before (0) or after (1) the crossing along ``d_r``. A straight road uses slots 0 and 1 for its
+    two whole curbs.
+    """
+    n = crossing.shape[0]
+    half = 0.5 * roads.width.unsqueeze(-1)  # [n, 2, 1]
+    mid = roads.centre.view(n, 1, 1, 2) + torch.stack(
+        (-half, half), dim=2
+    ) * roads.normals.unsqueeze(2)
+    line_a = mid - half_extent * roads.dirs.unsqueeze(2)  # [n, road, side, 2]
+    line_b = mid + half_extent * roads.dirs.unsqueeze(2)
+    # corners on each curb line: road 0 side -/+ -> (0, 3) / (1, 2); road 1 -> (0, 1) / (3, 2)
+    idx = torch.tensor([[[0, 3], [1, 2]], [[0, 1], [3, 2]]], device=crossing.device)
+    cj = roads.corners[:, idx]  # [n, road, side, 2 corners, 2]
+    sj = torch.einsum("nrsjc,nrc->nrsj", cj - roads.centre.view(n, 1, 1, 1, 2), roads.dirs)
     first = (sj[..., 0] <= sj[..., 1]).unsqueeze(-1)
     c_lo = torch.where(first, cj[..., 0, :], cj[..., 1, :])
     c_hi = torch.where(first, cj[..., 1, :], cj[..., 0, :])
@@ -450,71 +521,26 @@ def generate_scenes(
     straight_curbs = torch.zeros_like(cross_curbs)
     straight_curbs[:, :2] = torch.cat((line_a[:, 0], line_b[:, 0]), -1)
     curbs = torch.where(crossing.view(n, 1, 1), cross_curbs, straight_curbs)
-    curb_mask = torch.ones(n, CURB_SLOTS, dtype=torch.bool, device=dev)
-    curb_mask[:, 2:] = crossing.unsqueeze(-1)
-    corners = corners * crossing.view(n, 1, 1)
-
-    obstacles, obstacle_mask = _obstacles(
-        cfg,
-        rand,
-        crossing=crossing,
-        centre=centre,
-        heading=heading,
-        width=width,
-        dirs=dirs,
-        normals=normals,
-        extent=extent,
-        corners=corners,
-        start=start,
-        goal=goal,
-        road_s=road_s,
-        road_g=road_g,
-        front=front,
-        rear=rear,
-    )
-    segments = torch.cat((curbs, obstacles), dim=1)
-    mask = torch.cat((curb_mask, obstacle_mask), dim=1)
-    kind = torch.full((n, cfg.num_segments), KIND_OBSTACLE, dtype=torch.int8, device=dev)
-    kind[:, :CURB_SLOTS] = KIND_CURB
-    roads = torch.cat(
-        (centre.unsqueeze(1).expand(n, 2, 2), heading.unsqueeze(-1), width.unsqueeze(-1)), -1
-    )
-    road_mask = torch.stack((torch.ones_like(crossing), crossing), dim=-1)
-    roads = roads * road_mask.unsqueeze(-1)
-    return SceneBatch(
-        segments=segments * mask.unsqueeze(-1),
-        mask=mask,
-        kind=kind,
-        start=start,
-        goal=goal,
-        crossing=crossing,
-        intersection=corners,
-        roads=roads,
-        road_mask=road_mask,
-    )
+    mask = torch.ones(n, CURB_SLOTS, dtype=torch.bool, device=crossing.device)
+    mask[:, 2:] = crossing.unsqueeze(-1)
+    return curbs, mask
 
 
-def _pose_zone(
-    pose: Tensor, road: Tensor, centre: Tensor, dirs: Tensor, t0: Tensor, t1: Tensor
-) -> tuple[Tensor, Tensor, Tensor]:
-    """Lane side ``[N]`` (+-1 along the road normal) and ``[lo, hi]`` interval ``[N]`` along
-    ``d_road`` of the zone spanning ``t0..t1`` metres ahead of the pose's rear axle."""
-    d = _pick(dirs, road)
-    u = torch.stack((torch.cos(pose[:, 2]), torch.sin(pose[:, 2])), dim=-1)
-    k = torch.where((u * d).sum(-1) >= 0.0, 1.0, -1.0)  # driving with (+1) or against d
-    s = ((pose[:, :2] - centre) * d).sum(-1)
-    a, b = s + k * t0, s + k * t1
-    return -k, torch.minimum(a, b), torch.maximum(a, b)
-
-
-def _obstacles(cfg: SceneConfig, rand, **g) -> tuple[Tensor, Tensor]:
-    """Obstacle edges ``[N, 4K, 4]`` and mask ``[N, 4K]`` (rules in the module doc).
+def _obstacles(
+    cfg: SceneConfig,
+    rand,
+    roads: _Roads,
+    crossing: Tensor,
+    start: Tensor,
+    goal: Tensor,
+    ext: _Extents,
+) -> tuple[Tensor, Tensor]:
+    """Obstacle edges ``[n, 4K, 4]`` and mask ``[n, 4K]`` (rules in the module doc).
 
     Obstacles and start/goal footprints are rectangles aligned with their road, so every rule that
     can fail is an interval test in road coordinates (``s`` along ``d_r``); the others hold by
     construction of the slots and by the config checks of :class:`SceneConfig`.
     """
-    crossing, centre = g["crossing"], g["centre"]
     n, dev, K = crossing.shape[0], crossing.device, cfg.max_obstacles
     if K == 0:
         return torch.zeros(n, 0, 4, device=dev), torch.zeros(n, 0, dtype=torch.bool, device=dev)
@@ -526,13 +552,9 @@ def _obstacles(cfg: SceneConfig, rand, **g) -> tuple[Tensor, Tensor]:
     road = torch.div(line, 2, rounding_mode="floor")  # [n, K]
     side = torch.where(line % 2 == 0, -1.0, 1.0)
     rows = torch.arange(n, device=dev).unsqueeze(-1)
-    d = g["dirs"][rows, road]  # [n, K, 2]
-    nrm = g["normals"][rows, road]
-    w = g["width"][rows, road]
-    hdg = g["heading"][rows, road]
     first = torch.where(
         crossing.unsqueeze(-1),
-        g["extent"][rows, road] + cfg.obstacle_intersection_clearance,
+        roads.extent[rows, road] + cfg.obstacle_intersection_clearance,
         0.0,
     )
     slot_lo = first + torch.div(rank, 2, rounding_mode="floor") * cfg.obstacle_spacing
@@ -541,28 +563,8 @@ def _obstacles(cfg: SceneConfig, rand, **g) -> tuple[Tensor, Tensor]:
     # Keep-out intervals on the start's and goal's own lane: footprint + zone, padded by clearance.
     pad = cfg.obstacle_pose_clearance
     zones = [
-        (
-            g["road_s"],
-            *_lane_interval(
-                g["start"],
-                g["road_s"],
-                centre,
-                g["dirs"],
-                -g["rear"] - pad,
-                g["front"] + cfg.pose_zone_length + pad,
-            ),
-        ),
-        (
-            g["road_g"],
-            *_lane_interval(
-                g["goal"],
-                g["road_g"],
-                centre,
-                g["dirs"],
-                -g["rear"] - cfg.pose_zone_length - pad,
-                g["front"] + pad,
-            ),
-        ),
+        _lane_interval(start, roads, -ext.rear - pad, ext.front + cfg.pose_zone_length + pad),
+        _lane_interval(goal, roads, -ext.rear - cfg.pose_zone_length - pad, ext.front + pad),
     ]
 
     ok = torch.zeros(n, K, dtype=torch.bool, device=dev)
@@ -592,26 +594,37 @@ def _obstacles(cfg: SceneConfig, rand, **g) -> tuple[Tensor, Tensor]:
         dims = torch.where(take, drawn, dims)
         ok = ok | valid
     half_len, half_wid, offset = dims.unbind(-1)
-    lateral = side * (0.5 * w - offset - half_wid)
-    xy = centre.unsqueeze(1) + s.unsqueeze(-1) * d + lateral.unsqueeze(-1) * nrm
-    edges = rectangle_segments(xy[..., 0], xy[..., 1], hdg, half_len, half_len, half_wid)
+    lateral = side * (0.5 * roads.width[rows, road] - offset - half_wid)
+    xy = (
+        roads.centre.unsqueeze(1)
+        + s.unsqueeze(-1) * roads.dirs[rows, road]
+        + lateral.unsqueeze(-1) * roads.normals[rows, road]
+    )
+    edges = rectangle_segments(
+        xy[..., 0], xy[..., 1], roads.heading[rows, road], half_len, half_len, half_wid
+    )
     mask = (keep & ok).unsqueeze(-1).expand(n, K, 4).reshape(n, 4 * K)
     return edges.flatten(1, 2), mask
 
 
 def _lane_interval(
-    pose: Tensor, road: Tensor, centre: Tensor, dirs: Tensor, t0: Tensor, t1: Tensor
-) -> tuple[Tensor, Tensor, Tensor]:
+    pose: Tensor, roads: _Roads, t0: Tensor, t1: Tensor
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """The lane of a pose and an interval on it.
 
+    Args:
+        pose: ``[n, 4]`` (x, y, heading, road index).
+        roads: the scene roads.
+        t0, t1: ``[n]`` interval ends [m] ahead of the pose's rear axle (negative = behind).
+
     Returns:
-        ``side [N]`` (+-1 along the road normal ``n_r``: the pose's half of road ``road [N]``) and
-        ``lo, hi [N]``: the along-road coordinates [m] of ``t0..t1 [N]`` metres ahead of the pose's
-        rear axle, measured along ``d_r`` from the scene centre.
+        ``road [n]``, ``side [n]`` (+-1 along ``n_r``: the pose's half of the road) and ``lo, hi
+        [n]``: the interval in along-road coordinates [m] from the scene centre along ``d_r``.
     """
-    d = _pick(dirs, road)
+    road = pose[:, 3].long()
+    d = _pick(roads.dirs, road)
     u = torch.stack((torch.cos(pose[:, 2]), torch.sin(pose[:, 2])), dim=-1)
     k = torch.where((u * d).sum(-1) >= 0.0, 1.0, -1.0)  # driving along (+1) or against d_r
-    s = ((pose[:, :2] - centre) * d).sum(-1)
+    s = ((pose[:, :2] - roads.centre) * d).sum(-1)
     a, b = s + k * t0, s + k * t1
-    return -k, torch.minimum(a, b), torch.maximum(a, b)
+    return road, -k, torch.minimum(a, b), torch.maximum(a, b)
