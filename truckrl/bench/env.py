@@ -1,0 +1,177 @@
+"""Environment throughput: env-steps/s of TruckEnv, batched vs. the paper's process layout.
+
+Measured with a uniformly random policy (``action_spec.rand()``), resets included
+(``step_and_maybe_reset``), after a warm-up that also absorbs ``torch.compile``:
+
+* one batched ``TruckEnv`` (no extra processes) at N trucks, eager and compiled;
+* ``ParallelEnv`` with W worker processes, each a batched ``TruckEnv`` of N / W trucks;
+* the paper's layout: 24 worker processes each stepping one truck (``ParallelEnv(24, n=1)``),
+  measured in the same run so the ratio is side by side;
+* optionally (``--collector``) ``Collector`` frames/s with the real two-branch policy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import time
+
+import torch
+from torchrl.envs import EnvBase, ParallelEnv
+
+from truckrl.bench.report import print_table, write_json
+from truckrl.env import EnvConfig, TruckEnv
+
+TARGET_STEPS_PER_S = 100_000  # issue target on a 2-core CPU, 16 beams
+TARGET_RATIO_VS_PAPER = 30.0  # best config >= 30x the paper layout in the same run
+PAPER_WORKERS = 24  # paper: 24 single-truck worker processes
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--envs", type=int, nargs="+", default=[1, 24, 256, 1024, 4096])
+    parser.add_argument("--workers", type=int, default=2, help="W of the ParallelEnv rows")
+    parser.add_argument(
+        "--parallel-envs", type=int, nargs="+", default=[1024, 4096], help="total N, ParallelEnv"
+    )
+    parser.add_argument("--steps", type=int, default=50, help="timed steps per measurement")
+    parser.add_argument("--warmup", type=int, default=5, help="untimed steps first")
+    parser.add_argument("--compile", choices=["both", "on", "off"], default="both")
+    parser.add_argument("--no-paper", action="store_true", help="skip the 24-process layout")
+    parser.add_argument("--collector", action="store_true", help="also Collector + policy")
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--threads", type=int, help="torch threads in the main process")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default="outputs/bench")
+
+
+def _make_env(n: int, compile: bool, device: str, seed: int) -> TruckEnv:
+    return TruckEnv(num_envs=n, device=device, config=EnvConfig(compile=compile), seed=seed)
+
+
+def steps_per_second(env: EnvBase, steps: int, warmup: int) -> tuple[float, float]:
+    """Random-policy env-steps/s (trucks x steps / wall time) and the warm-up seconds."""
+    t0 = time.perf_counter()
+    td = env.reset()
+    for _ in range(warmup):
+        td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))[1]
+    warm = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))[1]
+    if env.device.type == "cuda":
+        torch.cuda.synchronize(env.device)
+    return env.batch_size.numel() * steps / (time.perf_counter() - t0), warm
+
+
+def run(args: argparse.Namespace) -> dict:
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    modes = {"both": [False, True], "on": [True], "off": [False]}[args.compile]
+    rows = []
+
+    def record(layout, workers, per_worker, compiled, sps, warm):
+        rows.append(
+            {
+                "layout": layout,
+                "workers": workers,
+                "envs/worker": per_worker,
+                "trucks": workers * per_worker,
+                "compile": compiled,
+                "steps/s": sps,
+                "warmup_s": warm,
+            }
+        )
+        print(
+            f"  {layout:8s} W={workers:<3d} n={per_worker:<6d} compile={compiled!s:5s} "
+            f"{sps:12,.0f} steps/s",
+            flush=True,
+        )
+
+    paper_sps = None
+    if not args.no_paper:
+        make = functools.partial(_make_env, 1, False, "cpu", args.seed)
+        penv = ParallelEnv(PAPER_WORKERS, make, mp_start_method="fork")
+        try:
+            penv.set_seed(args.seed)
+            paper_sps, warm = steps_per_second(penv, args.steps, args.warmup)
+        finally:
+            penv.close()
+        record("paper", PAPER_WORKERS, 1, False, paper_sps, warm)
+
+    for compiled in modes:
+        for n in args.envs:
+            env = _make_env(n, compiled, args.device, args.seed)
+            sps, warm = steps_per_second(env, args.steps, args.warmup)
+            record("batched", 1, n, compiled, sps, warm)
+        for total in args.parallel_envs:
+            per = max(1, total // args.workers)
+            make = functools.partial(_make_env, per, compiled, "cpu", args.seed)
+            penv = ParallelEnv(args.workers, make, mp_start_method="fork")
+            try:
+                penv.set_seed(args.seed)
+                sps, warm = steps_per_second(penv, args.steps, args.warmup)
+            finally:
+                penv.close()
+            record("parallel", args.workers, per, compiled, sps, warm)
+
+    if paper_sps:
+        for r in rows:
+            r["x paper"] = r["steps/s"] / paper_sps
+    if args.collector:
+        rows += _collector_rows(args, modes[-1])
+
+    table = print_table("TruckEnv env-steps/s (random policy, resets included)", rows)
+    best = max(rows, key=lambda r: r["steps/s"])
+    summary = {
+        "best": best,
+        "target_steps_per_s": TARGET_STEPS_PER_S,
+        "target_met": best["steps/s"] >= TARGET_STEPS_PER_S,
+        "paper_layout_steps_per_s": paper_sps,
+        "best_x_paper": best["steps/s"] / paper_sps if paper_sps else None,
+        "target_ratio_vs_paper": TARGET_RATIO_VS_PAPER,
+    }
+    print(
+        f"\nbest: {best['layout']} W={best['workers']} n={best['envs/worker']} "
+        f"compile={best['compile']}: {best['steps/s']:,.0f} steps/s"
+        + (f" = {summary['best_x_paper']:.1f}x the paper layout" if paper_sps else "")
+    )
+    write_json(
+        "env", {"rows": rows, "summary": summary, "table": table, "args": vars(args)}, args.out
+    )
+    return summary
+
+
+def _collector_rows(args: argparse.Namespace, compiled: bool) -> list[dict]:
+    """Collector frames/s with the real two-branch policy (random weights)."""
+    from torchrl.collectors import Collector
+
+    from truckrl.agent.network import ModelConfig, make_actor_critic
+    from truckrl.env import NUM_FEATURES
+
+    rows = []
+    for n in args.parallel_envs:
+        env = _make_env(n, compiled, args.device, args.seed)
+        actor = make_actor_critic(ModelConfig(), NUM_FEATURES, env.config.lidar.num_beams).actor
+        frames = n * 32
+        collector = Collector(env, actor, frames_per_batch=frames, total_frames=frames * 6)
+        t0 = time.perf_counter()
+        it = iter(collector)
+        next(it)  # warm-up batch (compile)
+        warm = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        count = sum(batch.numel() for batch in it)
+        fps = count / (time.perf_counter() - t0)
+        collector.shutdown()
+        rows.append(
+            {
+                "layout": "collector",
+                "workers": 1,
+                "envs/worker": n,
+                "trucks": n,
+                "compile": compiled,
+                "steps/s": fps,
+                "warmup_s": warm,
+            }
+        )
+        print(f"  collector n={n} {fps:,.0f} frames/s", flush=True)
+    return rows
