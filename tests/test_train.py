@@ -11,10 +11,12 @@ from pathlib import Path
 
 import pytest
 import torch
+from hydra import compose, initialize_config_dir
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from truckrl.agent.checkpoint import load_checkpoint
-from truckrl.train import CollectorConfig, TrainConfig, make_env, set_difficulty
+from truckrl.sim.validation import ConfigError
+from truckrl.train import CONFIG_PATH, CollectorConfig, TrainConfig, make_env, set_difficulty
 
 ROOT = Path(__file__).resolve().parent.parent
 BATCH = 16 * 16  # env.num_envs x collector.steps_per_env below
@@ -142,30 +144,47 @@ def test_sigkill_then_resume_loses_nothing_before_the_checkpoint(tmp_path):
     assert scalar_steps(run) == [BATCH * i for i in range(1, k + 2)]
 
 
-@pytest.mark.parametrize(
-    ("override", "field"),
-    [("ppo.num_minibatches=7", "ppo.num_minibatches"), ("ppo.lr=-1e-4", "ppo.lr")],
-)
-def test_bad_config_is_one_clear_line(override, field, tmp_path):
-    proc = train(override, f"hydra.run.dir={tmp_path}", check=False)
+def test_bad_config_is_one_clear_line_before_any_work(tmp_path):
+    proc = train("ppo.num_minibatches=7", f"hydra.run.dir={tmp_path}", check=False)
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
-    assert proc.stderr.strip().startswith("ConfigError:") and field in proc.stderr
+    assert proc.stderr.strip().startswith("ConfigError:") and "ppo.num_minibatches" in proc.stderr
     assert not (tmp_path / "checkpoints").exists()
 
 
-def test_cfg_job_prints_the_composed_config():
-    proc = subprocess.run(
-        [sys.executable, "-m", "truckrl.train", "ppo=paper", "--cfg", "job"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=120,
+def compose_train(*overrides: str):
+    with initialize_config_dir(config_dir=CONFIG_PATH, version_base=None):
+        return compose("train", overrides=list(overrides))
+
+
+@pytest.mark.parametrize(
+    ("override", "field"),
+    [
+        ("ppo.lr=-1e-4", "ppo.lr"),
+        ("collector.steps_per_env=0", "collector.steps_per_env"),
+        ("curriculum.threshold=1.2", "curriculum.threshold"),
+        ("model.kernel_size=4", "model.kernel_size"),
+        ("env.dt=-0.1", "env.dt"),
+    ],
+)
+def test_bad_values_name_the_field(override, field):
+    with pytest.raises(ConfigError, match=field):
+        TrainConfig.from_hydra(compose_train(override))
+
+
+def test_paper_preset_has_the_paper_numbers():
+    tc = TrainConfig.from_hydra(compose_train("ppo=paper"))
+    assert tc.num_envs * tc.collector.workers == 24 and tc.collector.steps_per_env == 512
+    p = tc.ppo
+    assert (p.lr, p.num_epochs, p.num_minibatches, p.gamma, p.lmbda) == (1e-4, 8, 96, 0.99, 0.95)
+    assert (p.clip_epsilon, p.entropy_coeff, p.value_coeff, p.max_grad_norm) == (
+        0.2,
+        0.005,
+        0.5,
+        4.0,
     )
-    assert proc.returncode == 0, proc.stderr
-    # the paper preset: 24 envs x 512 steps, 96 minibatches, lr 1e-4
-    assert "num_envs: 24" in proc.stdout and "steps_per_env: 512" in proc.stdout
-    assert "num_minibatches: 96" in proc.stdout and "lr: 0.0001" in proc.stdout
+    assert p.lr_schedule == "adaptive" and p.desired_kl == 0.01
+    assert p.check_batch(tc.frames_per_batch) == 128  # paper: minibatch 128
 
 
 def test_difficulty_reaches_every_parallel_worker():
