@@ -364,19 +364,26 @@ class TruckEnv(EnvBase):
         return td
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        """Reset all trucks, or only those flagged by ``tensordict["_reset"]`` (``[N, 1]`` bool).
+
+        On a partial reset only the reset rows of the returned tensordict are meaningful: TorchRL
+        merges them with ``where(_reset, new, old)``, so the other rows are left at zero and the
+        observation (LiDAR included) is computed for the reset trucks alone.
+        """
         reset = None if tensordict is None else tensordict.get("_reset", None)
         if self._state is None or reset is None:
             self._state = self._new_episodes(self.num_envs)
-            reset = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
+            out = self._observe()
         else:
-            reset = reset.reshape(self.num_envs)
-            idx = reset.nonzero().squeeze(-1)  # one sync per reset, never per step
+            idx = reset.reshape(self.num_envs).nonzero().squeeze(-1)  # one sync per reset call
+            out = self.observation_spec.zero()
             if idx.numel():
                 self._state[idx] = self._new_episodes(idx.numel())
-        zero_col = torch.zeros(self.num_envs, 1, device=self.device)
+                part = self._features(self._flat_state(idx), self._difficulty[idx])
+                for k, v in part.items():
+                    out[k][idx] = v
         false_col = torch.zeros(self.num_envs, 1, dtype=torch.bool, device=self.device)
-        out = self._observe()
-        out.update({k: zero_col for k in REWARD_TERMS})
+        out.update({k: torch.zeros(self.num_envs, 1, device=self.device) for k in REWARD_TERMS})
         out.update({k: false_col for k in FLAG_KEYS})
         out.update(done=false_col, terminated=false_col, truncated=false_col)
         return out
@@ -393,9 +400,9 @@ class TruckEnv(EnvBase):
         self._state.update(new)
         return TensorDict(out, batch_size=[self.num_envs], device=self.device)
 
-    def _flat_state(self) -> dict[str, Any]:
-        """The state as plain tensors (``params`` as a dict): what the compiled functions take."""
-        s = self._state
+    def _flat_state(self, index: torch.Tensor | None = None) -> dict[str, Any]:
+        """The state (rows ``index``, default all) as plain tensors, ``params`` as a dict."""
+        s = self._state if index is None else self._state[index]
         flat = {k: s[k] for k in _STATE_KEYS}
         flat["params"] = {k: s["params", k] for k in PARAM_KEYS}
         return flat

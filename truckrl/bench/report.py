@@ -59,7 +59,7 @@ def format_table(rows: Sequence[dict[str, Any]], columns: Sequence[str] | None =
 
     def cell(v: Any) -> str:
         if isinstance(v, float):
-            return f"{v:.4g}"
+            return f"{v:,.0f}" if abs(v) >= 1000 else f"{v:.4g}"
         return "" if v is None else str(v)
 
     body = [[cell(r.get(c)) for c in columns] for r in rows]
