@@ -531,8 +531,10 @@ class TruckEnv(EnvBase):
         return {
             "observation": torch.cat((goal_local, angles, motion, geometry), dim=-1),
             "lidar": ranges / self.config.lidar.max_range,
-            **{k: s[k][:, None] for k in ERROR_KEYS},
-            "step_count": s["step_count"][:, None],
+            # copies: a later partial reset writes the state in place, and these values must stay
+            # those of the step that ended the episode
+            **{k: s[k][:, None].clone() for k in ERROR_KEYS},
+            "step_count": s["step_count"][:, None].clone(),
             "difficulty": difficulty[:, None].clone(),
         }
 

@@ -79,11 +79,6 @@ def test_tracker_statistics_by_hand():
     ]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="TruckEnv._observe returns views of its state tensors: the partial reset after a done "
-    "overwrites that step's ('next', pos_error / heading errors / step_count)",
-)
 def test_real_env_episode_end_values_belong_to_the_finished_episode():
     env = TruckEnv(num_envs=64, seed=0)
     td = env.rollout(6, break_when_any_done=False)
