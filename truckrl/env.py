@@ -253,6 +253,7 @@ class TruckEnv(EnvBase):
         )
         self._state: TensorDict | None = None
         self._pool: TensorDict | None = None
+        self._restore: TensorDictBase | None = None  # state for the next reset (reset_to)
         self._difficulty = torch.full(
             (self.num_envs,), cfg.tolerance.difficulty, device=self.device
         )
@@ -371,7 +372,10 @@ class TruckEnv(EnvBase):
         observation (LiDAR included) is computed for the reset trucks alone.
         """
         reset = None if tensordict is None else tensordict.get("_reset", None)
-        if self._state is None or reset is None:
+        if self._restore is not None:
+            self._state, self._restore = self._restore, None
+            out = self._observe()
+        elif self._state is None or reset is None:
             self._state = self._new_episodes(self.num_envs)
             out = self._observe()
         else:
@@ -387,6 +391,23 @@ class TruckEnv(EnvBase):
         out.update({k: false_col for k in FLAG_KEYS})
         out.update(done=false_col, terminated=false_col, truncated=false_col)
         return out
+
+    def reset_to(self, state: TensorDictBase) -> TensorDictBase:
+        """Reset every truck to a saved full state and return the reset tensordict.
+
+        Replays an episode from its start (same scene, vehicle and pose) without drawing from the
+        scene generator, so the sequence of later random scenes is unchanged.
+
+        Args:
+            state: ``[N]`` states as saved by :meth:`state_of` right after a reset (stack them,
+                e.g. ``state.unsqueeze(0)`` for ``N = 1``).
+        """
+        if tuple(state.batch_size) != (self.num_envs,):
+            raise ValueError(
+                f"reset_to needs a state of batch size [{self.num_envs}], got {list(state.batch_size)}"
+            )
+        self._restore = state.to(self.device).clone()
+        return self.reset()
 
     # ------------------------------------------------------------------ step
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
