@@ -241,3 +241,13 @@ def test_render_frame_is_rgb_image():
     img = env.render_frame(1)
     assert img.ndim == 3 and img.shape[2] == 3 and img.dtype.name == "uint8"
     assert img.std() > 0
+
+
+def test_render_frame_center_override():
+    env = make(1)
+    env.reset()
+    far = env.state_of(0)["pose"][:2] + 1e4  # nothing drawn within 10 km of this point
+    img = env.render_frame(0, center=far, size_px=64)
+    assert img.shape == (64, 64, 3)
+    assert (img == img[0, 0]).all()
+    assert not (env.render_frame(0, size_px=64) == img[0, 0]).all()

@@ -567,7 +567,8 @@ class TruckEnv(EnvBase):
     def render_frame(self, index: int = 0, **draw_kwargs) -> np.ndarray:
         """RGB image ``[H, W, 3]`` uint8 of truck ``index``: scene, truck, goal, tolerance, LiDAR.
 
-        Extra keyword arguments go to :func:`truckrl.viz.draw.draw_scene` (e.g. ``hud_lines``).
+        Extra keyword arguments go to :func:`truckrl.viz.draw.draw_scene` (e.g. ``hud_lines``,
+        ``size_px``); the view is centred on the tractor rear axle unless ``center`` is given.
         """
         from truckrl.viz.draw import draw_scene
 
@@ -589,8 +590,7 @@ class TruckEnv(EnvBase):
             lidar_origin=origin[0].cpu(),
             lidar_ranges=ranges[0].cpu(),
             lidar_angles=(self.rel_angles + s["pose"][0, 2]).cpu(),
-            center=s["pose"][0, :2].cpu(),
-            **draw_kwargs,
+            **{"center": s["pose"][0, :2].cpu(), **draw_kwargs},
         )
 
     def state_of(self, index: int) -> TensorDict:
