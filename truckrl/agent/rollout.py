@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -35,6 +36,8 @@ def evaluate_policy(
         (bool), "length" [steps], "pos_error" [m], "tractor_heading_error" and
         "trailer_heading_error" [deg] at the episode's last step.
     """
+    # eager: a one-off batch does not repay ~20 s of torch.compile
+    env_cfg = dataclasses.replace(env_cfg, compile=False)
     env = TruckEnv(num_envs=episodes, device=device, config=env_cfg, seed=seed)
     env.set_difficulty(difficulty)
     tol_pos, tol_ang = env.tolerances()
@@ -87,6 +90,7 @@ def record_episode(
     device: str | torch.device = "cpu",
 ) -> np.ndarray:
     """Frames ``[F, H, W, 3]`` uint8 RGB of one deterministic episode (stops at its end)."""
+    env_cfg = dataclasses.replace(env_cfg, compile=False)  # one truck: compiling does not pay
     env = TruckEnv(num_envs=1, device=device, config=env_cfg, seed=seed)
     env.set_difficulty(difficulty)
     td = env.reset()
