@@ -1,0 +1,356 @@
+"""``python -m truckrl.play``: keyboard mapping, the shared frame loop, policy playback, video, window.
+
+Expected motion is hand-computed from the control law (``v_k = k * max_accel * dt`` under full
+acceleration, ``steer_k = -k * max_steer_rate * dt`` under full right steer rate, set-points moving
+by ``setpoint_rate * dt`` per step), not taken from the code under test.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from truckrl.agent.checkpoint import load_checkpoint
+from truckrl.agent.network import ModelConfig, make_actor_critic
+from truckrl.env import EnvConfig, TruckEnv
+from truckrl.play import CONFIG_PATH, LoopResult, PlayConfig, Runner, build, play, run_loop
+from truckrl.sim.control import ControlConfig
+from truckrl.sim.validation import ConfigError
+from truckrl.viz.keyboard import (
+    Command,
+    KeyboardConfig,
+    KeyInput,
+    KeyMapper,
+    command_for,
+    parse_key_script,
+)
+
+ROOT = Path(__file__).resolve().parent.parent
+SMALL_VIEW = {"size_px": 96, "panel_px": 64}
+DT = 0.1  # [s] paper
+
+
+def drive(
+    tmp_path: Path, script: str, env_cfg: EnvConfig | None = None, **options
+) -> tuple[Runner, LoopResult, list]:
+    """Play a key script headless; return the runner, the loop result and the state per frame."""
+    keys = tmp_path / "keys.txt"
+    keys.write_text(script)
+    pc = PlayConfig(headless=True, actions=str(keys), view=SMALL_VIEW, **options)
+    runner, inputs, _, _ = build(pc, env_cfg or EnvConfig())
+    states: list = []
+    result = run_loop(
+        runner, inputs, episodes=1, sinks=(lambda r: states.append(r.env.state_of(0)),)
+    )
+    return runner, result, states
+
+
+# ---------------------------------------------------------------------------------- keyboard
+def test_key_mapping_derivative_modes_command_full_scale_or_zero():
+    m = KeyMapper(ControlConfig("accel", "rate"), KeyboardConfig(), DT)
+    now = (0.3, -0.7)  # ignored by derivative modes
+    assert m.action({"w"}, now) == (1.0, 0.0)
+    assert m.action({"s", "a"}, now) == (-1.0, 1.0)
+    assert m.action({"w", "d"}, now) == (1.0, -1.0)
+    assert m.action(set(), now) == (0.0, 0.0)
+    assert m.action({"w", "s", "a", "d"}, now) == (0.0, 0.0)  # opposite keys cancel
+    assert m.action({"W", "x"}, now) == (1.0, 0.0)  # case-insensitive, other keys ignored
+
+
+def test_key_mapping_setpoint_modes_ramp_hold_and_recentre():
+    m = KeyMapper(ControlConfig("speed", "angle"), KeyboardConfig(1.0, 2.0), DT)
+    assert m.action({"w"}, (-1.0, 0.0)) == pytest.approx((-0.9, 0.0))  # +1.0/s x 0.1 s
+    assert m.action({"s", "a"}, (0.5, 0.2)) == pytest.approx((0.4, 0.3))
+    assert m.action({"w", "d"}, (1.0, -1.0)) == pytest.approx((1.0, -1.0))  # clipped
+    assert m.action(set(), (0.37, 0.5)) == pytest.approx((0.37, 0.3))  # hold speed; -2.0/s x 0.1
+    assert m.action(set(), (0.0, -0.5)) == pytest.approx((0.0, -0.3))
+    assert m.action(set(), (0.0, 0.1)) == pytest.approx((0.0, 0.0))  # no overshoot past centre
+
+
+def test_command_keys():
+    expected = {
+        "r": Command.RESTART,
+        "N": Command.NEW_SCENE,
+        "p": Command.PAUSE,
+        "space": Command.PAUSE,
+        ".": Command.STEP,
+        "+": Command.HARDER,
+        "[+]": Command.HARDER,
+        "-": Command.EASIER,
+        "m": Command.TOGGLE_MODE,
+        "q": Command.QUIT,
+        "escape": Command.QUIT,
+        "w": None,
+        "x": None,
+    }
+    assert {k: command_for(k) for k in expected} == expected
+
+
+def test_key_script_format_and_errors():
+    frames = parse_key_script("# demo\nW 2\n!r !+   # presses\nwd\n- 2\n!q\n")
+    assert frames == [
+        KeyInput(frozenset("w")),
+        KeyInput(frozenset("w")),
+        KeyInput(frozenset("wd"), ("r", "+")),
+        KeyInput(frozenset()),
+        KeyInput(frozenset()),
+        KeyInput(frozenset(), ("q",)),
+    ]
+    with pytest.raises(ConfigError, match="line 2.*WASD"):
+        parse_key_script("W 3\nWX 2\n")
+    with pytest.raises(ConfigError, match="line 1.*integer"):
+        parse_key_script("W many\n")
+    with pytest.raises(ConfigError, match="line 1.*command key"):
+        parse_key_script("!z\n")
+
+
+# ---------------------------------------------------------------------------------- frame loop
+def test_w_accelerates_and_d_turns_clockwise(tmp_path):
+    runner, result, states = drive(tmp_path, "W 10\nWD 6\n")
+    assert result.steps == 16 and result.frames == 17
+    p = states[0]["params"]
+    a, rate, vmax = float(p["max_accel"]), float(p["max_steer_rate"]), float(p["max_speed"])
+    speeds = [float(s["speed"]) for s in states]
+    for k in range(17):  # W held every step: full acceleration
+        assert speeds[k] == pytest.approx(min(k * a * DT, vmax), abs=1e-4)
+    steers = [float(s["steer"]) for s in states[10:]]
+    for j, steer in enumerate(steers):  # D held from step 11: steer right at the full rate
+        assert steer == pytest.approx(-j * rate * DT, abs=1e-5)
+    theta = [float(s["pose"][2]) for s in states[10:]]
+    turn = [math.remainder(b - a_, 2 * math.pi) for a_, b in zip(theta, theta[1:], strict=False)]
+    assert all(d < 0 for d in turn[1:]), turn  # clockwise: heading decreases
+    assert turn[-1] < turn[1]  # and faster as the wheel turns further
+
+
+def test_speed_angle_mode_ramps_holds_and_recentres(tmp_path):
+    cfg = EnvConfig(control=ControlConfig("speed", "angle"))
+    _, _, states = drive(tmp_path, "W 5\n- 3\nA 4\n- 2\n", cfg)
+    p = states[0]["params"]
+    vmax, smax = float(p["max_speed"]), float(p["max_steer"])
+    v = [float(s["speed"]) for s in states]
+    steer = [float(s["steer"]) / smax for s in states]
+    # set-point: action -1 (0 m/s) + 0.1 per W step; action u -> speed (u + 1) / 2 * max_speed
+    assert v[5] == pytest.approx(0.25 * vmax, rel=1e-4)
+    assert v[8] == pytest.approx(0.25 * vmax, rel=1e-4)  # held with nothing pressed
+    assert steer[12] == pytest.approx(0.4, abs=1e-5)  # +0.1 per A step
+    assert steer[13] == pytest.approx(0.2, abs=1e-5) and steer[14] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_restart_key_replays_the_scene_and_new_scene_key_changes_it(tmp_path):
+    _, _, states = drive(tmp_path, "W 8\n!r\n-\n!n\n-\n")
+    start, after_restart, after_new = states[0], states[9], states[10]
+    # at rest with nothing held (accel/rate: command 0), the restarted truck stays on its start
+    assert torch.equal(after_restart["pose"], start["pose"])
+    assert not torch.equal(states[8]["pose"], start["pose"])
+    for k in ("goal", "segments", "mask"):
+        assert torch.equal(after_restart[k], start[k]), k
+    assert int(after_restart["step_count"]) == 1
+    assert not torch.equal(after_new["goal"], start["goal"])
+    # the restart drew nothing from the generator: the new scene is the env's second scene
+    twin = TruckEnv(num_envs=1, seed=0)
+    twin.reset()
+    twin.reset()
+    assert torch.equal(twin.state_of(0)["goal"], after_new["goal"])
+
+
+def test_pause_then_step_key_advances_exactly_one_frame(tmp_path):
+    runner, result, states = drive(tmp_path, "W 5\n!p\nW 4\n!.\nW 3\n!p\nW 2\n")
+    steps = [int(s["step_count"]) for s in states]
+    assert result.steps == 5 + 1 + 2
+    assert steps[-1] == 8
+    assert runner.paused is False
+    paused_at = steps.index(5)
+    assert steps[paused_at : paused_at + 3] == [5, 5, 6]  # pause frame, then '.' steps once
+
+
+def test_difficulty_keys_change_tolerance(tmp_path):
+    runner, _, _ = drive(tmp_path, "!+ !+ !+\n-\n!-\n-\n")
+    pos, ang = runner.env.tolerances()
+    assert runner.env.get_difficulty() == 1.0
+    assert float(pos[0]) == pytest.approx(30.0 / 2)  # paper: 30 m x 2^-d
+    assert float(ang[0]) == pytest.approx(math.radians(60.0) / 2)
+
+
+def test_record_writes_every_frame_shown(tmp_path):
+    keys = tmp_path / "keys.txt"
+    keys.write_text("W 6\nWA 3\n")
+    video = tmp_path / "sub" / "run.mp4"
+    pc = PlayConfig(headless=True, actions=str(keys), record=str(video), view=SMALL_VIEW)
+    result = play(pc, EnvConfig())
+    assert result.frames == 10
+    cap = cv2.VideoCapture(str(video))
+    frames = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(f)
+    assert len(frames) == 10
+    assert frames[0].shape == (96, 96 + 64, 3)
+    assert cap.get(cv2.CAP_PROP_FPS) == pytest.approx(1 / DT)  # default: real time
+
+
+def test_headless_without_input_drives_one_random_episode(tmp_path):
+    pc = PlayConfig(headless=True, view=SMALL_VIEW, strip=str(tmp_path / "s.png"), strip_height=32)
+    env_cfg = EnvConfig(max_steps=12)
+    result = play(pc, env_cfg)
+    assert len(result.outcomes) == 1 and result.frames == result.steps + 1 <= 13
+    strip = cv2.imread(str(tmp_path / "s.png"))
+    assert strip.shape[0] == 32 and strip.shape[1] == 5 * 32 + 4 * 6  # 5 square tiles, 6 px gaps
+    capped = play(PlayConfig(headless=True, view=SMALL_VIEW, max_frames=4), env_cfg)
+    assert capped.frames == 4 and capped.steps == 3
+
+
+def test_same_seed_same_scene_as_the_env_with_the_training_config_groups():
+    with initialize_config_dir(config_dir=CONFIG_PATH, version_base=None):
+        cfg = compose("play", overrides=["seed=5", "control=speed_angle", "env.max_steps=50"])
+    pc = PlayConfig.from_hydra(cfg)
+    env_cfg = EnvConfig.from_hydra(cfg.env, cfg.control)
+    assert (env_cfg.control.longitudinal, env_cfg.control.lateral) == ("speed", "angle")
+    runner, _, _, _ = build(pc, dataclasses.replace(env_cfg, compile=True))
+    assert runner.env.config.max_steps == 50 and runner.mode == "manual"
+    assert runner.env.config.compile is False  # one truck: always eager
+    ref = TruckEnv(num_envs=1, seed=5, config=env_cfg).reset()
+    assert torch.equal(runner.first_observation["observation"], ref["observation"])
+    assert torch.equal(runner.first_observation["lidar"], ref["lidar"])
+
+
+# ---------------------------------------------------------------------------------- policy
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory) -> Path:
+    """A checkpoint from the real training entry point with tiny settings."""
+    d = tmp_path_factory.mktemp("run")
+    tiny = ["env.num_envs=8", "collector.steps_per_env=8", "ppo.num_minibatches=1"]
+    tiny += ["ppo.num_epochs=1", "log.video_interval=0", "log.progress_bar=false"]
+    tiny += ["env.compile=false"]  # the compile is slow and the viewer runs eagerly anyway
+    cmd = [sys.executable, "-m", "truckrl.train", *tiny, "total_frames=64", f"hydra.run.dir={d}"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return d
+
+
+def test_policy_plays_the_mean_action_in_the_seeded_scene(run_dir):
+    pc = PlayConfig(headless=True, checkpoint=str(run_dir), seed=11, view=SMALL_VIEW)
+    runner, inputs, _, _ = build(pc, EnvConfig(max_steps=5))  # ignored: the checkpoint's env
+    assert runner.mode == "policy" and runner.env.config.max_steps == 200
+    first = runner.first_observation
+    state = load_checkpoint(run_dir)
+    saved = OmegaConf.create(state["config"])
+    ref_cfg = EnvConfig.from_hydra(saved.env, saved.control)
+    ref_cfg.compile = False  # the viewer steps one truck eagerly
+    ref = TruckEnv(num_envs=1, seed=11, config=ref_cfg).reset()
+    assert torch.equal(first["observation"], ref["observation"])
+    assert torch.equal(first["lidar"], ref["lidar"])
+
+    ac = make_actor_critic(ModelConfig(), 26, 16)
+    ac.model.load_state_dict(state["model"])
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        expected = ac.actor(ref.select("observation", "lidar"))["loc"]
+    result = run_loop(runner, inputs, max_frames=2)
+    assert result.steps == 1
+    assert torch.allclose(runner.last_action, expected, atol=1e-6)
+
+    runner.command(Command.TOGGLE_MODE)
+    assert runner.mode == "manual"
+
+
+def test_policy_cli_records_video(run_dir, tmp_path):
+    video = tmp_path / "policy.mp4"
+    cmd = [sys.executable, "-m", "truckrl.play", f"checkpoint={run_dir}", "headless=true"]
+    cmd += ["max_frames=6", f"record={video}", "view.size_px=64", "view.panel_px=0"]
+    cmd += [f"hydra.run.dir={tmp_path}"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    cap = cv2.VideoCapture(str(video))
+    assert cap.get(cv2.CAP_PROP_FRAME_COUNT) == 6
+    assert (cap.get(cv2.CAP_PROP_FRAME_WIDTH), cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) == (64, 64)
+
+
+@pytest.mark.parametrize("kind", ["missing", "corrupt"])
+def test_bad_checkpoint_is_one_line_and_exit_code_2(kind, tmp_path):
+    path = tmp_path / "nonexistent.pt"
+    if kind == "corrupt":
+        path = tmp_path / "last.pt"
+        path.write_bytes(b"PK\x03\x04 definitely not a torch file")
+    cmd = [sys.executable, "-m", "truckrl.play", f"checkpoint={path}", "headless=true"]
+    cmd += [f"hydra.run.dir={tmp_path}"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("CheckpointError")
+    assert ("not found" if kind == "missing" else "cannot read") in lines[0]
+
+
+def test_bad_options_name_the_field(tmp_path):
+    with pytest.raises(ConfigError, match="on_done"):
+        PlayConfig(on_done="later")
+    with pytest.raises(ConfigError, match="view.size_px"):
+        PlayConfig(view={"size_px": 5})
+    with pytest.raises(ConfigError, match="not both"):
+        PlayConfig(checkpoint="a", actions="b")
+    with pytest.raises(ConfigError, match="actions file not found"):
+        build(PlayConfig(headless=True, actions=str(tmp_path / "nope.txt")), EnvConfig())
+    bad = tmp_path / "a.npy"
+    np.save(bad, np.zeros((4, 3)))
+    with pytest.raises(ConfigError, match=r"shape \[F >= 1, 2\]"):
+        build(PlayConfig(headless=True, actions=str(bad)), EnvConfig())
+
+
+def test_npy_actions_replay_until_the_array_ends(tmp_path):
+    arr = tmp_path / "a.npy"
+    np.save(arr, np.array([[1.0, 0.0]] * 4, dtype=np.float32))
+    runner, inputs, _, _ = build(
+        PlayConfig(headless=True, actions=str(arr), view=SMALL_VIEW), EnvConfig()
+    )
+    result = run_loop(runner, inputs)
+    a = float(runner.env.state_of(0)["params", "max_accel"])
+    assert result.steps == 4 and runner.mode == "replay"
+    assert float(runner.env.state_of(0)["speed"]) == pytest.approx(4 * a * DT, rel=1e-5)
+
+
+# ---------------------------------------------------------------------------------- window
+def test_pygame_window_runs_with_posted_keys(monkeypatch):
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    pygame = pytest.importorskip("pygame")
+    from truckrl.viz.window import Window
+
+    runner, _, _, _ = build(PlayConfig(view=SMALL_VIEW), EnvConfig())
+    assert runner.mode == "manual"
+    script = {
+        2: (pygame.K_p, "p"),
+        4: (pygame.K_PERIOD, "."),
+        5: (pygame.K_EQUALS, "+"),
+        7: (pygame.K_ESCAPE, "\x1b"),
+    }
+    calls = []
+
+    def key_state():  # held keys; posts the next frame's key presses as real pygame events
+        calls.append(1)
+        if len(calls) in script:
+            key, char = script[len(calls)]
+            pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=key, unicode=char, mod=0))
+        return {"w"}
+
+    window = Window(runner.frame.shape[1::-1], key_state=key_state)
+    try:
+        result = run_loop(runner, window, window=window, fps=1000.0)
+        shown = pygame.surfarray.array3d(window.screen).swapaxes(0, 1)
+    finally:
+        window.close()
+    # steps at polls 1, 2; paused at 3, 4; '.' steps once at 5; paused after; Esc at poll 8
+    assert len(calls) == 8 and result.steps == 3
+    assert runner.paused and runner.env.get_difficulty() == 0.5
+    assert np.array_equal(shown, runner.frame)
+    assert float(runner.env.state_of(0)["speed"]) > 0
