@@ -103,6 +103,7 @@ class PlayConfig:
 
     seed: int = 0
     device: str = "cpu"
+    threads: int = 1
     checkpoint: str | None = None
     actions: str | None = None
     headless: bool = False
@@ -122,6 +123,7 @@ class PlayConfig:
 
     def __post_init__(self) -> None:
         check_range("seed", self.seed, 0, 2**62)
+        check_range("threads", self.threads, 1, 1024)
         try:
             torch.device(self.device)
         except (RuntimeError, TypeError):
@@ -603,6 +605,12 @@ def play(pc: PlayConfig, env_cfg: EnvConfig, key_state=None) -> LoopResult:
             window = Window(runner.frame.shape[1::-1], "truckrl play", key_state)
         except Exception as e:  # pygame.error: no display available
             raise ConfigError(f"cannot open a window ({e}); use headless=true") from None
+        if window.driver in ("offscreen", "dummy") and not os.environ.get("SDL_VIDEODRIVER"):
+            window.close()
+            raise ConfigError(
+                f"no display (SDL fell back to its {window.driver!r} video driver): use "
+                f"headless=true, or set SDL_VIDEODRIVER={window.driver} to run the window unseen"
+            )
         inputs = CombinedInput(inputs, window) if isinstance(inputs, ScriptedKeys) else window
     episodes = pc.episodes if pc.episodes is not None or window else 1
     sinks: list[Callable[[Runner], None]] = []
@@ -647,6 +655,7 @@ def play(pc: PlayConfig, env_cfg: EnvConfig, key_state=None) -> LoopResult:
 def main(cfg: DictConfig) -> None:
     try:
         pc = PlayConfig.from_hydra(cfg)
+        torch.set_num_threads(pc.threads)
         play(pc, EnvConfig.from_hydra(cfg.env, cfg.control))
     except (ConfigError, CheckpointError) as e:
         print(f"{type(e).__name__}: {e}", file=sys.stderr)

@@ -62,6 +62,8 @@ class Window:
         key_state: Callable[[], Iterable[str]] | None = None,
     ) -> None:
         pygame.display.init()
+        #: SDL video driver in use; "offscreen" or "dummy" means nothing is visible
+        self.driver: str = pygame.display.get_driver()
         self.screen = pygame.display.set_mode(size)
         pygame.display.set_caption(title)
         self.clock = pygame.time.Clock()
