@@ -1,4 +1,4 @@
-"""``python -m truckrl.play``: keyboard mapping, the shared frame loop, policy playback, video, window.
+"""``python -m truckrl.play`` and ``truckrl.runner``: keys, frame loop, policy, video, window.
 
 Expected motion is hand-computed from the control law (``v_k = k * max_accel * dt`` under full
 acceleration, ``steer_k = -k * max_steer_rate * dt`` under full right steer rate, set-points moving
@@ -24,7 +24,8 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from truckrl.agent.checkpoint import load_checkpoint
 from truckrl.agent.network import ModelConfig, make_actor_critic
 from truckrl.env import EnvConfig, TruckEnv
-from truckrl.play import CONFIG_PATH, LoopResult, PlayConfig, Runner, build, play, run_loop
+from truckrl.play import CONFIG_PATH, PlayConfig, build, play
+from truckrl.runner import LoopResult, Runner, run_loop
 from truckrl.sim.control import ControlConfig
 from truckrl.sim.validation import ConfigError
 from truckrl.viz.keyboard import (
