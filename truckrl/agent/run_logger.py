@@ -15,9 +15,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from torch.utils.tensorboard import SummaryWriter
+
+from truckrl.viz.video import frame_strip, write_mp4
 
 
 def flatten(cfg: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -32,29 +33,6 @@ def flatten(cfg: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
         else:
             out[key] = str(v)
     return out
-
-
-def write_mp4(path: Path, frames: np.ndarray, fps: float) -> Path:
-    """Write RGB ``frames [F, H, W, 3]`` uint8 to an mp4 (codec mp4v)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    h, w = frames.shape[1:3]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
-    try:
-        for f in frames:
-            writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
-    finally:
-        writer.release()
-    return path
-
-
-def frame_strip(frames: np.ndarray, count: int = 6, height: int = 200) -> np.ndarray:
-    """``count`` evenly spaced frames side by side, each resized to ``height`` px: ``[h, W, 3]``."""
-    idx = np.linspace(0, len(frames) - 1, num=min(count, len(frames))).round().astype(int)
-    tiles = []
-    for f in frames[idx]:
-        w = max(1, round(f.shape[1] * height / f.shape[0]))
-        tiles.append(cv2.resize(f, (w, height), interpolation=cv2.INTER_AREA))
-    return np.concatenate(tiles, axis=1)
 
 
 class RunLogger:
@@ -80,7 +58,9 @@ class RunLogger:
 
     def video(self, frames: np.ndarray, iteration: int, step: int, fps: float) -> Path:
         path = write_mp4(self.run_dir / "videos" / f"iter_{iteration:06d}.mp4", frames, fps)
-        self.writer.add_image("video/rollout", frame_strip(frames), step, dataformats="HWC")
+        self.writer.add_image(
+            "video/rollout", frame_strip(frames, count=6), step, dataformats="HWC"
+        )
         return path
 
     def flush(self) -> None:
