@@ -18,13 +18,12 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from truckrl.agent.checkpoint import CheckpointError, load_checkpoint, resolve_checkpoint
-from truckrl.agent.network import ModelConfig, make_actor_critic
+from truckrl.agent.checkpoint import CheckpointError
+from truckrl.agent.policy import load_policy
 from truckrl.agent.rollout import evaluate_policy, summarize
-from truckrl.env import EnvConfig
-from truckrl.sim.validation import ConfigError, check_range, from_mapping
+from truckrl.sim.validation import ConfigError, check_range
 
 CONFIG_PATH = str(Path(__file__).resolve().parent.parent / "conf")
 
@@ -35,30 +34,17 @@ def evaluate(cfg: DictConfig, out_dir: Path) -> dict:
         raise ConfigError("checkpoint is required: checkpoint=<file or run dir>")
     check_range("episodes", cfg.episodes, 1, 1e7)
     check_range("seed", cfg.seed, 0, 2**62)
-    path = resolve_checkpoint(cfg.checkpoint)
-    state = load_checkpoint(path, map_location=cfg.device)
-    saved = OmegaConf.create(state["config"])
-    env_cfg = EnvConfig.from_hydra(saved.env, saved.control)
-    difficulty = (
-        state["curriculum"]["difficulty"] if cfg.difficulty is None else float(cfg.difficulty)
-    )
+    policy = load_policy(cfg.checkpoint, cfg.device)
+    difficulty = policy.difficulty if cfg.difficulty is None else float(cfg.difficulty)
     check_range("difficulty", difficulty, 0.0, 30.0)
 
-    model_cfg = from_mapping(ModelConfig, OmegaConf.to_container(saved.model), "model")
-    ac = make_actor_critic(model_cfg, int(state["num_obs"]), int(state["num_beams"]))
-    try:
-        ac.model.load_state_dict(state["model"])
-    except RuntimeError as e:
-        raise CheckpointError(f"{path}: model weights do not fit the saved config ({e})") from None
-    ac.model.to(cfg.device).eval()
-
     results, (tol_pos, tol_deg) = evaluate_policy(
-        ac.actor, env_cfg, difficulty, int(cfg.episodes), int(cfg.seed), cfg.device
+        policy.actor, policy.env_config, difficulty, int(cfg.episodes), int(cfg.seed), cfg.device
     )
     summary = {
-        "checkpoint": str(path),
-        "iteration": int(state["counters"]["iteration"]),
-        "frames": int(state["counters"]["frames"]),
+        "checkpoint": str(policy.path),
+        "iteration": int(policy.counters["iteration"]),
+        "frames": int(policy.counters["frames"]),
         "difficulty": difficulty,
         "tolerance_position_m": tol_pos,
         "tolerance_heading_deg": tol_deg,

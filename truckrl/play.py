@@ -39,8 +39,8 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from truckrl.agent.checkpoint import CheckpointError, load_checkpoint, resolve_checkpoint
-from truckrl.agent.network import ModelConfig, make_actor_critic
+from truckrl.agent.checkpoint import CheckpointError
+from truckrl.agent.policy import load_policy
 from truckrl.env import EnvConfig, TruckEnv
 from truckrl.runner import (
     ActionSource,
@@ -128,35 +128,6 @@ class PlayConfig:
 
 # ---------------------------------------------------------------------------------- sources
 @torch.no_grad()
-def load_policy(
-    checkpoint: str | os.PathLike, device: str | torch.device = "cpu"
-) -> tuple[Any, EnvConfig, float, Path]:
-    """Rebuild the actor of a training checkpoint.
-
-    Returns:
-        ``(actor, env config, curriculum difficulty, checkpoint file)``; the actor is a TorchRL
-        module reading "observation" and "lidar" and writing "action" (the mean under
-        ``ExplorationType.DETERMINISTIC``).
-
-    Raises:
-        CheckpointError: missing, corrupt, or weights that do not fit the saved config.
-    """
-    path = resolve_checkpoint(checkpoint)
-    state = load_checkpoint(path, map_location=device)
-    try:
-        saved = OmegaConf.create(state["config"])
-        env_cfg = EnvConfig.from_hydra(saved.env, saved.control)
-        model_cfg = from_mapping(ModelConfig, OmegaConf.to_container(saved.model), "model")
-        ac = make_actor_critic(model_cfg, int(state["num_obs"]), int(state["num_beams"]))
-        ac.model.load_state_dict(state["model"])
-        difficulty = float(state["curriculum"]["difficulty"])
-    except (KeyError, AttributeError, TypeError, ValueError, RuntimeError, ConfigError) as e:
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise CheckpointError(f"{path}: not a usable policy checkpoint ({first})") from None
-    ac.model.to(device).eval()
-    return ac.actor, env_cfg, difficulty, path
-
-
 def load_actions(path: str | os.PathLike) -> np.ndarray | list[KeyInput]:
     """An ``.npy`` action array ``[F, 2]`` (values in [-1, 1]) or a parsed key script.
 
@@ -186,7 +157,9 @@ def build(pc: PlayConfig, env_cfg: EnvConfig) -> tuple[Runner, Any, float, str]:
     difficulty = pc.difficulty
     what = "keyboard"
     if pc.checkpoint:
-        actor, env_cfg, ckpt_difficulty, path = load_policy(pc.checkpoint, pc.device)
+        loaded = load_policy(pc.checkpoint, pc.device)
+        actor, env_cfg = loaded.actor, loaded.env_config
+        ckpt_difficulty, path = loaded.difficulty, loaded.path
         difficulty = ckpt_difficulty if difficulty is None else difficulty
         what = f"policy {path} (env and control config from the checkpoint)"
     script = load_actions(pc.actions) if pc.actions else None
