@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> dict:
     paper_sps = None
     if not args.no_paper:
         make = functools.partial(_make_env, 1, False, "cpu", args.seed)
-        penv = ParallelEnv(PAPER_WORKERS, make, mp_start_method="fork")
+        penv = ParallelEnv(PAPER_WORKERS, make, mp_start_method="spawn")
         try:
             penv.set_seed(args.seed)
             paper_sps, warm = steps_per_second(penv, args.steps, args.warmup)
@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> dict:
         for total in args.parallel_envs:
             per = max(1, total // args.workers)
             make = functools.partial(_make_env, per, compiled, "cpu", args.seed)
-            penv = ParallelEnv(args.workers, make, mp_start_method="fork")
+            penv = ParallelEnv(args.workers, make, mp_start_method="spawn")
             try:
                 penv.set_seed(args.seed)
                 sps, warm = steps_per_second(penv, args.steps, args.warmup)
