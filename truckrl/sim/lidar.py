@@ -30,7 +30,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from truckrl.sim.geometry import point_segment_distance, ray_segment_distance, to_local
+from truckrl.sim.geometry import (
+    point_segment_distance,
+    ray_segment_distance,
+    to_local,
+    wrap_angle,
+)
 from truckrl.sim.validation import ConfigError, check_choice, check_range
 
 #: Implementations of :func:`lidar_scan`.
@@ -345,7 +350,7 @@ def _span_scan(local: Tensor, mask: Tensor | None, rel: Tensor, max_range: float
     length = torch.hypot(x1 - x0, y1 - y0)
     near = torch.minimum(torch.hypot(x0, y0), torch.hypot(x1, y1)).clamp_min(1e-12)
     pad = (_SPAN_PAD + (_END_SLACK * length + _F32_COORD_EPS) / near).clamp_max(_SPAN_PAD_MAX)
-    lo = torch.remainder(start - pad + math.pi, two_pi) - math.pi
+    lo = wrap_angle(start - pad)
     width_ang = span + 2.0 * pad
     # First beam at or after the interval start (wrapping past the last beam to beam 0), then a
     # fixed-width run of following beams, each kept only if it lies inside the interval.
