@@ -1,0 +1,83 @@
+"""Golden recordings that pin the env's outputs and one PPO iteration bit for bit.
+
+``python tests/golden/golden.py`` re-records both files. Do that only when a change is *meant* to
+alter outputs, and say why in the commit message; a refactor must leave them untouched.
+
+* ``rollout.npz``: ``TruckEnv(num_envs=64, seed=0)`` with the default config, 200 steps of
+  actions drawn from a fixed generator (uniform in [-1.2, 1.2], so the clamp is exercised, plus a
+  NaN action every 37th step on truck 5 for the non-finite guard), with partial resets. Every
+  leaf of every step is stored (root and ``next``).
+* ``ppo.npz``: one PPO update (2 epochs x 4 minibatches) on a 16-truck x 32-step rollout of the
+  paper's network under ``torch.manual_seed(0)``: the loss metrics and every parameter after it.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+HERE = Path(__file__).resolve().parent
+ROLLOUT_FILE = HERE / "rollout.npz"
+PPO_FILE = HERE / "ppo.npz"
+
+
+def _flat(td) -> dict[str, np.ndarray]:
+    out = {}
+    for key in td.keys(include_nested=True, leaves_only=True):
+        name = "/".join(key) if isinstance(key, tuple) else key
+        out[name] = td.get(key).detach().cpu().numpy()
+    return out
+
+
+def golden_rollout() -> dict[str, np.ndarray]:
+    """Every output key of every step of the fixed rollout (eager env)."""
+    from truckrl.env import TruckEnv
+
+    env = TruckEnv(num_envs=64, seed=0)
+    gen = torch.Generator().manual_seed(1234)
+    step = [0]
+
+    def policy(td):
+        a = torch.rand(64, 2, generator=gen) * 2.4 - 1.2
+        if step[0] % 37 == 0:
+            a[5] = float("nan")
+        step[0] += 1
+        return td.set("action", a)
+
+    td = env.rollout(200, policy, break_when_any_done=False)
+    env.close()
+    return _flat(td)
+
+
+def golden_ppo() -> dict[str, np.ndarray]:
+    """Loss metrics and parameters after one PPO update on a fixed rollout."""
+    from truckrl.agent.network import ModelConfig, make_actor_critic
+    from truckrl.agent.ppo import PPO, PPOConfig
+    from truckrl.env import TruckEnv
+
+    torch.manual_seed(0)
+    env = TruckEnv(num_envs=16, seed=3)
+    ac = make_actor_critic(ModelConfig(), 26, 16)
+    with torch.no_grad():
+        batch = env.rollout(32, ac.actor, break_when_any_done=False)
+    env.close()
+    ppo = PPO(ac, PPOConfig(num_epochs=2, num_minibatches=4, lr=3e-4))
+    metrics = ppo.update(batch)
+    out = {f"metric/{k}": np.asarray(v, dtype=np.float64) for k, v in metrics.items()}
+    for name, p in ac.model.state_dict().items():
+        out[f"param/{name}"] = p.detach().cpu().numpy()
+    return out
+
+
+def main() -> None:
+    torch.set_num_threads(1)
+    np.savez_compressed(ROLLOUT_FILE, **golden_rollout())
+    np.savez_compressed(PPO_FILE, **golden_ppo())
+    print(f"wrote {ROLLOUT_FILE} ({ROLLOUT_FILE.stat().st_size:,} B), {PPO_FILE}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
