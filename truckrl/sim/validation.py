@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
+import typing
 from collections.abc import Mapping, Sequence
 from typing import Any, TypeVar
 
@@ -94,3 +96,179 @@ def from_mapping(cls: type[T], data: Mapping[str, Any] | T | None, where: str = 
         for k, v in data.items()
     }
     return cls(**kwargs)
+
+
+# ---------------------------------------------------------------------------------- field specs
+@dataclasses.dataclass(frozen=True)
+class Spec:
+    """What a config field accepts, and what it means (read by :func:`validate` and the docs).
+
+    Attributes:
+        lo, hi: allowed range of a number, of each end of a ``[min, max]`` pair, or of each
+            element of a tuple; ``lo_open`` / ``hi_open`` make the bound strict.
+        choices: allowed strings.
+        unit: unit of the value (``"m"``, ``"rad/s"``, ``"-"``...).
+        doc: one line saying what the field is.
+        source: where the default comes from (``"paper"``, or a short reason).
+    """
+
+    lo: float = -math.inf
+    hi: float = math.inf
+    lo_open: bool = False
+    hi_open: bool = False
+    choices: tuple[str, ...] | None = None
+    unit: str = ""
+    doc: str = ""
+    source: str = ""
+
+    def range_text(self) -> str:
+        if self.choices is not None:
+            return " | ".join(self.choices)
+        left = "(" if self.lo_open else "["
+        right = ")" if self.hi_open else "]"
+        return f"{left}{_num(self.lo)}, {_num(self.hi)}{right}"
+
+
+def _num(x: float) -> str:
+    return ("-inf" if x < 0 else "inf") if math.isinf(x) else f"{x:g}"
+
+
+def param(
+    default: Any = dataclasses.MISSING,
+    *,
+    lo: float = -math.inf,
+    hi: float = math.inf,
+    lo_open: bool = False,
+    hi_open: bool = False,
+    choices: Sequence[str] | None = None,
+    unit: str = "",
+    doc: str = "",
+    source: str = "",
+) -> Any:
+    """A dataclass field carrying its :class:`Spec`: the one place a default and its range live.
+
+    Example::
+
+        num_beams: int = param(16, lo=1, hi=4096, unit="-", doc="LiDAR beams R")
+    """
+    spec = Spec(lo, hi, lo_open, hi_open, tuple(choices) if choices else None, unit, doc, source)
+    return dataclasses.field(default=default, metadata={"spec": spec})
+
+
+def spec_of(cls: type, name: str) -> Spec | None:
+    """The :class:`Spec` of field ``name`` of dataclass ``cls`` (None when it has none)."""
+    for f in dataclasses.fields(cls):
+        if f.name == name:
+            return f.metadata.get("spec")
+    raise KeyError(name)
+
+
+_HINTS: dict[type, dict[str, Any]] = {}
+
+
+def _hints(cls: type) -> dict[str, Any]:
+    if cls not in _HINTS:
+        _HINTS[cls] = typing.get_type_hints(cls)
+    return _HINTS[cls]
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _check_scalar(name: str, value: Any, typ: Any, spec: Spec) -> Any:
+    """Type- and range-check one value; returns it (ints stay ints, numbers become floats)."""
+    if typ is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{name} = {value!r} must be true or false")
+        return value
+    if typ is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{name} = {value!r} must be a string")
+        if spec.choices is not None:
+            check_choice(name, value, spec.choices)
+        return value
+    if typ is int:
+        if not (_is_number(value) and float(value).is_integer()) or isinstance(value, float):
+            raise ConfigError(f"{name} = {value!r} must be a whole number in {spec.range_text()}")
+        check_range(name, value, spec.lo, spec.hi, lo_open=spec.lo_open, hi_open=spec.hi_open)
+        return int(value)
+    if typ is float:
+        if not _is_number(value):
+            raise ConfigError(f"{name} = {value!r} must be a number in {spec.range_text()}")
+        return check_range(
+            name, value, spec.lo, spec.hi, lo_open=spec.lo_open, hi_open=spec.hi_open
+        )
+    return value
+
+
+def _check_value(name: str, value: Any, typ: Any, spec: Spec) -> Any:
+    origin, args = typing.get_origin(typ), typing.get_args(typ)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        (inner,) = [a for a in args if a is not type(None)]
+        return _check_value(name, value, inner, spec)
+    if origin is tuple:
+        if isinstance(value, str) or not isinstance(value, Sequence):
+            raise ConfigError(f"{name} = {value!r} must be a list")
+        if len(args) == 2 and args[1] is Ellipsis:
+            if len(value) == 0:
+                raise ConfigError(f"{name} must list at least one value")
+            return tuple(
+                _check_scalar(f"{name}[{i}]", v, args[0], spec) for i, v in enumerate(value)
+            )
+        if len(value) != len(args):
+            what = "a [min, max] pair" if len(args) == 2 else f"a list of {len(args)} values"
+            raise ConfigError(f"{name} = {list(value)!r} must be {what}")
+        out = tuple(
+            _check_scalar(f"{name}[{i}]", v, t, spec)
+            for i, (v, t) in enumerate(zip(value, args, strict=True))
+        )
+        if len(out) == 2 and out[0] > out[1]:
+            raise ConfigError(f"{name} = {list(out)}: min must not exceed max")
+        return out
+    return _check_scalar(name, value, typ, spec)
+
+
+def validate(obj: Any, where: str = "") -> None:
+    """Check every field of dataclass ``obj`` (recursing into nested ones) against its type and
+    :class:`Spec`; normalise lists to tuples in place.
+
+    Errors name the full dotted field (``where`` + field name) and the allowed range or type.
+
+    Raises:
+        ConfigError: the first bad value found.
+    """
+    hints = _hints(type(obj))
+    for f in dataclasses.fields(obj):
+        name = f"{where}.{f.name}" if where else f.name
+        value = getattr(obj, f.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            validate(value, name)
+            continue
+        spec = f.metadata.get("spec")
+        if spec is None:
+            continue
+        checked = _check_value(name, value, hints[f.name], spec)
+        if checked is not value:
+            object.__setattr__(obj, f.name, checked)
+
+
+def spec_table(cls: type, where: str = "") -> list[tuple[str, str, str, str, str]]:
+    """Rows ``(dotted name, default, unit, allowed, meaning)`` of ``cls`` and nested configs.
+
+    The docs print this table (``python -m truckrl.config``) instead of copying the defaults.
+    """
+    rows = []
+    for f in dataclasses.fields(cls):
+        name = f"{where}.{f.name}" if where else f.name
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+        if dataclasses.is_dataclass(default):
+            rows += spec_table(type(default), name)
+            continue
+        spec = f.metadata.get("spec") or Spec()
+        shown = list(default) if isinstance(default, tuple) else default
+        doc = spec.doc + (f" ({spec.source})" if spec.source else "")
+        rows.append((name, str(shown), spec.unit, spec.range_text(), doc))
+    return rows
