@@ -272,3 +272,35 @@ def spec_table(cls: type, where: str = "") -> list[tuple[str, str, str, str, str
         doc = spec.doc + (f" ({spec.source})" if spec.source else "")
         rows.append((name, str(shown), spec.unit, spec.range_text(), doc))
     return rows
+
+
+def build(cls: type[T], data: Any = None, where: str = "") -> T:
+    """Build config dataclass ``cls`` from a plain mapping, recursing into nested config fields.
+
+    The one way configs are made from data: Hydra's composed config (as a container), a
+    checkpoint's saved config and user dicts all come through here. Unknown keys, a non-mapping
+    where a nested config belongs, and bad values (via the classes' :func:`validate`) raise
+    :class:`ConfigError` naming the dotted field.
+    """
+    if data is None:
+        return cls()
+    if isinstance(data, cls):
+        return data
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where or cls.__name__} must be a group of fields, got {data!r}")
+    hints = _hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data.keys()) - names)
+    if unknown:
+        raise ConfigError(
+            f"unknown field(s) {unknown} for {where or cls.__name__}; known: {sorted(names)}"
+        )
+    kwargs = {}
+    for k, v in data.items():
+        t = hints[k]
+        name = f"{where}.{k}" if where else k
+        kwargs[k] = build(t, v, name) if dataclasses.is_dataclass(t) else v
+    try:
+        return cls(**kwargs)
+    except TypeError as e:  # a required field is missing
+        raise ConfigError(f"{where or cls.__name__}: {e}") from None

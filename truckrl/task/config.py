@@ -1,0 +1,99 @@
+"""Configuration of the task core and of TruckEnv: every default is written here, once.
+
+The fields carry their range, unit and meaning (:func:`truckrl.sim.validation.param`);
+``python -m truckrl.config`` prints them as a table. Hydra composes these dataclasses as
+structured configs (``truckrl/entry.py``); YAML files only hold presets.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from collections.abc import Mapping
+from typing import Any
+
+from truckrl.sim.control import ControlConfig
+from truckrl.sim.lidar import LidarConfig
+from truckrl.sim.validation import ConfigError, build, param, validate
+from truckrl.sim.vehicle import VehicleConfig
+
+#: [m] Scale of goal positions in the observation and of the LiDAR range (paper: "scaled by 50
+#: meters", "maximum sensor range of 50 meters").
+SENSOR_SCALE = 50.0
+#: Largest curriculum difficulty accepted anywhere (tolerances shrink by 2**-30: far below float32
+#: resolution of a pose, so higher values mean nothing).
+MAX_DIFFICULTY = 30.0
+
+
+@dataclass
+class TaskConfig:
+    """Base of every task's config; ``name`` picks the task module ``truckrl.task.<name>``."""
+
+    name: str = param("intersection", doc="task module under truckrl/task/")
+
+
+@dataclass
+class ToleranceConfig:
+    """Goal tolerances at difficulty 0 and the starting difficulty (paper, "Curriculum")."""
+
+    position: float = param(
+        30.0, lo=0.0, hi=1e4, lo_open=True, unit="m", doc="position tolerance at difficulty 0",
+        source="paper",
+    )
+    heading_deg: float = param(
+        60.0, lo=0.0, hi=180.0, lo_open=True, unit="deg",
+        doc="heading tolerance at difficulty 0", source="paper",
+    )
+    difficulty: float = param(
+        0.0, lo=0.0, hi=MAX_DIFFICULTY, unit="-",
+        doc="starting difficulty d; tolerances scale by 2**-d",
+    )
+
+    def __post_init__(self) -> None:
+        validate(self, "env.tolerance")
+
+    @property
+    def heading(self) -> float:
+        """Heading tolerance at difficulty 0 [rad]."""
+        return math.radians(self.heading_deg)
+
+
+@dataclass
+class EnvConfig:
+    """Everything that defines a TruckEnv except its batch size and device."""
+
+    dt: float = param(0.1, lo=0.0, hi=1.0, lo_open=True, unit="s", doc="step", source="paper")
+    max_steps: int = param(
+        200, lo=1, hi=1_000_000, unit="steps", doc="steps before timeout", source="paper"
+    )
+    substeps: int = param(1, lo=1, hi=1000, unit="-", doc="Euler sub-steps per dt (1 = paper)")
+    nonfinite_action: str = param(
+        "zero", choices=("zero", "error"),
+        doc="zero: replace NaN/inf actions by 0 and flag them; error: raise (syncs every step)",
+    )
+    compile: bool = param(
+        False, doc="torch.compile the step and observation (~20 s per process, fast for big N)"
+    )
+    episode_pool: int = param(
+        256, lo=1, hi=1_000_000, unit="episodes",
+        doc="episodes generated per refill of the reset pool (batched generation is cheaper)",
+    )
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
+    tolerance: ToleranceConfig = field(default_factory=ToleranceConfig)
+    #: The task's own config (a :class:`TaskConfig` subclass, chosen by its ``name``); ``None``
+    #: means the default task, ``intersection``.
+    task: Any = None
+
+    def __post_init__(self) -> None:
+        validate(self, "env")
+        if self.task is None:
+            self.task = {}
+        if isinstance(self.task, Mapping):
+            from truckrl.task.registry import task_class
+
+            name = self.task.get("name", TaskConfig.name)
+            self.task = build(task_class(name).config_class, self.task, "env.task")
+        elif not isinstance(self.task, TaskConfig):
+            raise ConfigError(f"env.task must be a task config, got {self.task!r}")

@@ -1,0 +1,46 @@
+"""Task lookup by name: ``truckrl.task.<name>`` is a module that defines ``TASK``.
+
+Adding a task is one module here (a :class:`~truckrl.task.base.Task` subclass with its config
+class, exported as ``TASK``) and, for Hydra, one preset file ``conf/task/<name>.yaml``; the env,
+the agent and the entry points find it by name.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from typing import TYPE_CHECKING
+
+from truckrl.sim.validation import ConfigError
+
+if TYPE_CHECKING:
+    from truckrl.task.base import Task
+
+_NOT_TASKS = {"base", "config", "registry", "schema"}
+
+
+def task_names() -> list[str]:
+    """Names of the task modules shipped in ``truckrl/task``."""
+    import truckrl.task
+
+    return sorted(
+        m.name for m in pkgutil.iter_modules(truckrl.task.__path__) if m.name not in _NOT_TASKS
+    )
+
+
+def task_class(name: str) -> type[Task]:
+    """The :class:`Task` subclass of task ``name``.
+
+    Raises:
+        ConfigError: no such task module, or it defines no ``TASK``.
+    """
+    if not isinstance(name, str) or not name.isidentifier() or name in _NOT_TASKS:
+        raise ConfigError(f"env.task.name = {name!r} is not one of {task_names()}")
+    try:
+        module = importlib.import_module(f"truckrl.task.{name}")
+    except ModuleNotFoundError:
+        raise ConfigError(f"env.task.name = {name!r} is not one of {task_names()}") from None
+    cls = getattr(module, "TASK", None)
+    if cls is None:
+        raise ConfigError(f"truckrl.task.{name} defines no TASK")
+    return cls
