@@ -237,7 +237,8 @@ class TruckEnv(EnvBase):
             else:
                 self._state = self._new_episodes(n)
             out = TensorDict(
-                self._observe_fn(self._flat_state(), self._difficulty), batch_size=[n],
+                self._observe_fn(self._flat_state(), self._difficulty),
+                batch_size=[n],
                 device=self.device,
             )
         else:

@@ -28,20 +28,18 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import sys
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import hydra
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from truckrl.agent.checkpoint import CheckpointError
 from truckrl.agent.policy import load_policy
-from truckrl.env import EnvConfig, TruckEnv
+from truckrl.cli import hydra_entry
+from truckrl.configs import PlayConfig
+from truckrl.env import TruckEnv
 from truckrl.runner import (
     ActionSource,
     ArraySource,
@@ -52,78 +50,11 @@ from truckrl.runner import (
     RandomSource,
     Runner,
     StripSink,
-    ViewConfig,
     run_loop,
 )
-from truckrl.sim.validation import ConfigError, check_choice, check_range, from_mapping
-from truckrl.viz.keyboard import KeyboardConfig, KeyInput, NoKeys, ScriptedKeys, parse_key_script
+from truckrl.sim.validation import ConfigError
+from truckrl.viz.keyboard import KeyInput, NoKeys, ScriptedKeys, parse_key_script
 from truckrl.viz.video import Mp4Writer, frame_strip, write_png
-
-CONFIG_PATH = str(Path(__file__).resolve().parent.parent / "conf")
-ON_DONE = ("new", "same", "wait")
-
-
-# ---------------------------------------------------------------------------------- config
-@dataclass(frozen=True)
-class PlayConfig:
-    """The validated viewer options of ``conf/play.yaml`` (env and control are validated by
-    :class:`EnvConfig`)."""
-
-    seed: int = 0
-    device: str = "cpu"
-    threads: int = 1
-    checkpoint: str | None = None
-    actions: str | None = None
-    headless: bool = False
-    record: str | None = None
-    strip: str | None = None
-    strip_frames: int = 5
-    strip_height: int = 300
-    difficulty: float | None = None
-    difficulty_step: float = 0.5
-    fps: float | None = None
-    max_frames: int | None = None
-    episodes: int | None = None
-    on_done: str = "new"
-    done_hold_s: float = 1.0
-    view: ViewConfig = field(default_factory=ViewConfig)
-    keyboard: KeyboardConfig = field(default_factory=KeyboardConfig)
-
-    def __post_init__(self) -> None:
-        check_range("seed", self.seed, 0, 2**62)
-        check_range("threads", self.threads, 1, 1024)
-        try:
-            torch.device(self.device)
-        except (RuntimeError, TypeError):
-            raise ConfigError(f"device = {self.device!r} is not a torch device") from None
-        if not isinstance(self.headless, bool):
-            raise ConfigError(f"headless = {self.headless!r} must be true or false")
-        if self.checkpoint and self.actions:
-            raise ConfigError("give checkpoint or actions, not both")
-        check_range("strip_frames", self.strip_frames, 1, 100)
-        check_range("strip_height", self.strip_height, 16, 4096)
-        if self.difficulty is not None:
-            check_range("difficulty", self.difficulty, 0.0, 30.0)
-        check_range("difficulty_step", self.difficulty_step, 0.0, 30.0, lo_open=True)
-        if self.fps is not None:
-            check_range("fps", self.fps, 0.0, 1000.0, lo_open=True)
-        if self.max_frames is not None:
-            check_range("max_frames", self.max_frames, 1, 1e9)
-        if self.episodes is not None:
-            check_range("episodes", self.episodes, 1, 1e9)
-        check_choice("on_done", self.on_done, ON_DONE)
-        check_range("done_hold_s", self.done_hold_s, 0.0, 3600.0)
-        object.__setattr__(self, "view", from_mapping(ViewConfig, self.view, "view"))
-        object.__setattr__(
-            self, "keyboard", from_mapping(KeyboardConfig, self.keyboard, "keyboard")
-        )
-
-    @classmethod
-    def from_hydra(cls, cfg: DictConfig) -> PlayConfig:
-        c = OmegaConf.to_container(cfg, resolve=True)
-        for k in ("env", "control", "hydra"):
-            c.pop(k, None)
-        return from_mapping(cls, c, "play")
 
 
 # ---------------------------------------------------------------------------------- sources
@@ -151,9 +82,10 @@ def load_actions(path: str | os.PathLike) -> np.ndarray | list[KeyInput]:
 
 
 # ---------------------------------------------------------------------------------- entry
-def build(pc: PlayConfig, env_cfg: EnvConfig) -> tuple[Runner, Any, float, str]:
+def build_runner(pc: PlayConfig) -> tuple[Runner, Any, float, str]:
     """Env, sources and input for a validated config: ``(runner, input, fps, description)``."""
     actor = None
+    env_cfg = pc.env
     difficulty = pc.difficulty
     what = "keyboard"
     if pc.checkpoint:
@@ -188,9 +120,9 @@ def build(pc: PlayConfig, env_cfg: EnvConfig) -> tuple[Runner, Any, float, str]:
     return runner, inputs, fps, what
 
 
-def play(pc: PlayConfig, env_cfg: EnvConfig, key_state=None) -> LoopResult:
+def play(pc: PlayConfig, key_state=None) -> LoopResult:
     """Run the viewer (window, or headless) until quit, the input ends or a limit is reached."""
-    runner, inputs, fps, what = build(pc, env_cfg)
+    runner, inputs, fps, what = build_runner(pc)
     window = None
     if not pc.headless:
         try:
@@ -249,15 +181,10 @@ def play(pc: PlayConfig, env_cfg: EnvConfig, key_state=None) -> LoopResult:
     return result
 
 
-@hydra.main(version_base=None, config_path=CONFIG_PATH, config_name="play")
-def main(cfg: DictConfig) -> None:
-    try:
-        pc = PlayConfig.from_hydra(cfg)
-        torch.set_num_threads(pc.threads)
-        play(pc, EnvConfig.from_hydra(cfg.env, cfg.control))
-    except (ConfigError, CheckpointError) as e:
-        print(f"{type(e).__name__}: {e}", file=sys.stderr)
-        sys.exit(2)
+@hydra_entry("play", PlayConfig)
+def main(pc: PlayConfig, raw: DictConfig) -> None:
+    torch.set_num_threads(pc.threads)
+    play(pc)
 
 
 if __name__ == "__main__":

@@ -25,10 +25,11 @@ from tensordict import TensorDictBase
 from torch import Tensor
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from truckrl.env import REWARD_TERMS, TruckEnv
+from truckrl.env import TruckEnv
 from truckrl.sim.control import ControlConfig
-from truckrl.sim.validation import ConfigError, check_choice, check_range
-from truckrl.viz.draw import COLORS
+from truckrl.sim.validation import check_choice, param, validate
+from truckrl.task import MAX_DIFFICULTY, OUTCOMES, shown_float
+from truckrl.viz.draw import COLORS, draw_state
 from truckrl.viz.keyboard import KEY_HELP, Command, KeyboardConfig, KeyInput, KeyMapper, command_for
 from truckrl.viz.panel import Line, with_panel
 from truckrl.viz.video import frame_strip
@@ -47,19 +48,16 @@ class EndOfInput(Exception):
 class ViewConfig:
     """Camera and frame layout (``view.*``)."""
 
-    follow: bool = False
-    size_px: int = 640
-    half_extent: float = 40.0
-    margin: float = 15.0
-    panel_px: int = 340
+    follow: bool = param(False, doc="false: fixed camera on start and goal; true: follow the truck")
+    size_px: int = param(640, lo=64, hi=4096, unit="px", doc="side of the bird's-eye view")
+    half_extent: float = param(
+        40.0, lo=1.0, hi=1e4, unit="m", doc="half the view side (at least half start-goal + margin)"
+    )
+    margin: float = param(15.0, lo=0.0, hi=1e4, unit="m", doc="space around start and goal")
+    panel_px: int = param(340, lo=0, hi=4096, unit="px", doc="width of the HUD panel (0: none)")
 
     def __post_init__(self) -> None:
-        if not isinstance(self.follow, bool):
-            raise ConfigError(f"view.follow = {self.follow!r} must be true or false")
-        check_range("view.size_px", self.size_px, 64, 4096)
-        check_range("view.half_extent", self.half_extent, 1.0, 1e4)
-        check_range("view.margin", self.margin, 0.0, 1e4)
-        check_range("view.panel_px", self.panel_px, 0, 4096)
+        validate(self, "view")
 
 
 # ---------------------------------------------------------------------------------- sources
@@ -102,7 +100,7 @@ class KeyboardSource:
 
     def __call__(self, td: TensorDictBase, held: frozenset[str]) -> Tensor:
         cfg = self.env.config
-        current = commanded_values(self.env.state_of(0), cfg.control, cfg.vehicle.min_speed)
+        current = commanded_values(self.env.get_state()[0], cfg.control, cfg.vehicle.min_speed)
         action = self.mapper.action(held, current)
         return torch.tensor([action], dtype=torch.float32, device=self.env.device)
 
@@ -133,12 +131,7 @@ class RandomSource:
 
 
 # ---------------------------------------------------------------------------------- runner
-_OUTCOMES = (
-    ("success", "SUCCESS", _OK),
-    ("collision", "COLLISION", _BAD),
-    ("jackknife", "JACK-KNIFE", _BAD),
-    ("truncated", "TIMEOUT", _BAD),
-)
+_OUTCOMES = tuple((o.flag, o.label, _OK if o.good else _BAD) for o in OUTCOMES)
 
 
 class Runner:
@@ -175,12 +168,12 @@ class Runner:
     def new_scene(self) -> None:
         """A new random scene (the env's next episode)."""
         td = self.env.reset()
-        self._start = self.env.state_of(0).unsqueeze(0)
+        self._start = self.env.get_state()
         self._begin(td)
 
     def restart(self) -> None:
         """The current scene again from its start pose."""
-        self._begin(self.env.reset_to(self._start))
+        self._begin(self.env.set_state(self._start))
 
     def _begin(self, td: TensorDictBase) -> None:
         self.td = td
@@ -210,7 +203,7 @@ class Runner:
         elif cmd in (Command.HARDER, Command.EASIER):
             sign = 1.0 if cmd is Command.HARDER else -1.0
             d = self.env.get_difficulty() + sign * self.difficulty_step
-            self.env.set_difficulty(min(30.0, max(0.0, d)))
+            self.env.set_difficulty(min(MAX_DIFFICULTY, max(0.0, d)))
         elif cmd is Command.TOGGLE_MODE:
             if {"manual", "policy"} <= set(self.sources):
                 self.mode = "policy" if self.mode == "manual" else "manual"
@@ -242,7 +235,7 @@ class Runner:
     def render(self) -> None:
         """Draw the current state: ``self.view_image`` (bird's-eye view) and ``self.frame``
         (view + HUD panel, what the window shows and videos record)."""
-        s = self.env.state_of(0)
+        s = self.env.get_state()[0]
         t = int(s["step_count"]) * self.env.config.dt
         kwargs: dict[str, Any] = {"size_px": self.view.size_px}
         if self.view.follow:
@@ -254,14 +247,21 @@ class Runner:
         caption = f"t {t:4.1f} s  v {float(s['speed']):4.1f} m/s"
         if self.outcome:
             caption += f"  {self.outcome}"
-        self.view_image = self.env.render_frame(0, hud_lines=[caption], **kwargs)
+        tol_pos, tol_ang = (float(x[0]) for x in self.env.tolerances())
+        self.view_image = draw_state(
+            s,
+            self.td["lidar"][0] * self.env.config.lidar.max_range,
+            self.env.task.rel_angles,
+            (tol_pos, tol_ang),
+            hud_lines=[caption],
+            **kwargs,
+        )
         self.frame = with_panel(self.view_image, self.hud(s), self.view.panel_px)
         self.frame_id += 1
 
     def hud(self, s: TensorDictBase) -> list[Line]:
         """HUD and key-help lines for the panel, from the truck's state ``s``."""
         cfg = self.env.config
-        deg = 180.0 / math.pi
         tol_pos, tol_ang = (float(x[0]) for x in self.env.tolerances())
         status = "PAUSED" if self.paused else ""
         lines: list[Line] = [
@@ -269,23 +269,23 @@ class Runner:
             f"control {cfg.control.longitudinal} / {cfg.control.lateral}",
             f"step {int(s['step_count'])}/{cfg.max_steps}   scenes {self.episodes_done}",
             f"speed {float(s['speed']):6.2f} m/s  acc {float(s['accel']):+5.2f}",
-            f"steer {float(s['steer']) * deg:+6.1f} deg  rate {float(s['steer_rate']) * deg:+5.1f}",
-            f"articulation {float(s['pose'][3]) * deg:+6.1f} deg",
+            f"steer {math.degrees(s['steer']):+6.1f} deg  rate {math.degrees(s['steer_rate']):+5.1f}",
+            f"articulation {math.degrees(s['pose'][3]):+6.1f} deg",
             "",
-            f"goal dist {float(s['pos_error']):6.2f} m (tol {tol_pos:.2f})",
-            f"tractor err {float(s['tractor_heading_error']) * deg:5.1f} deg (tol {tol_ang * deg:.1f})",
-            f"trailer err {float(s['trailer_heading_error']) * deg:5.1f} deg",
+            *(
+                f"{q.label:<16} {shown_float(q, float(s[q.key])):7.2f} {q.shown_unit}"
+                for q in self.env.task.error_quantities
+            ),
+            f"tolerance {tol_pos:.2f} m, {math.degrees(tol_ang):.1f} deg",
             f"difficulty {self.env.get_difficulty():.1f}",
             "",
         ]
         last = self.last
-        r = {k: 0.0 if last is None else float(last[k]) for k in ("reward", *REWARD_TERMS)}
-        lines += [
-            f"return {self.episode_return:+8.3f}  last {r['reward']:+.3f}",
-            f" progress {r['r_progress']:+.3f}  time {r['r_time']:+.2f}",
-            f" heading  {r['r_tractor_heading']:+.3f}  trailer {r['r_trailer_heading']:+.3f}",
-            f" success {r['r_success']:+.0f} crash {r['r_collision']:+.0f} timeout {r['r_timeout']:+.0f}",
-        ]
+        keys = ("reward", *self.env.task.reward_keys)
+        r = {k: 0.0 if last is None else float(last[k]) for k in keys}
+        lines.append(f"return {self.episode_return:+8.3f}  last {r['reward']:+.3f}")
+        terms = [f"{k.removeprefix('r_')[:9]:<9} {r[k]:+.3f}" for k in keys[1:]]
+        lines += [" " + "  ".join(terms[i : i + 2]) for i in range(0, len(terms), 2)]
         if self.last_action is not None:
             a = self.last_action.reshape(-1).tolist()
             lines.append(f" action {a[0]:+.2f} {a[1]:+.2f}")

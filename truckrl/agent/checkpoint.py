@@ -3,13 +3,17 @@
 A checkpoint is a plain dict of tensors, numbers, strings and containers of them, so it loads with
 ``torch.load(path, weights_only=True)`` (no pickled code). Layout written by ``truckrl.train``::
 
-    {"version": 1,
+    {"version": 2,
      "model": state_dict, "ppo": {"optimizer": state_dict, "lr": float},
      "curriculum": {"difficulty", "ema", "promotions", "episodes"},
      "counters": {"iteration", "frames", "wall_time_s"},
      "rng": {"torch": uint8 tensor, "numpy": {...}, "python": tuple},
-     "env_seed": int, "num_obs": int, "num_beams": int,
-     "config": resolved Hydra config as a YAML string}
+     "num_obs": int, "num_beams": int,
+     "config": resolved training config (truckrl.configs.TrainConfig) as a YAML string,
+     "source": {"commit": str, "dirty": bool}}
+
+:func:`save_training_state` writes it and :func:`load_training_state` reads and checks it; the
+policy loader (:mod:`truckrl.agent.policy`) and ``train resume=`` both go through the latter.
 
 Run-dir layout: ``<run_dir>/checkpoints/last.pt`` (plus ``iter_XXXXXX.pt`` when kept).
 """
@@ -27,7 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
 CHECKPOINT_DIR = "checkpoints"
 LAST_NAME = "last.pt"
 
@@ -122,3 +126,61 @@ def restore_rng(state: dict[str, Any]) -> None:
 
 def _to_lists(x: Any) -> Any:
     return [_to_lists(v) for v in x] if isinstance(x, tuple) else x
+
+
+#: Entries every training checkpoint holds, with their type.
+TRAINING_KEYS: dict[str, type] = {
+    "model": dict,
+    "ppo": dict,
+    "curriculum": dict,
+    "counters": dict,
+    "rng": dict,
+    "num_obs": int,
+    "num_beams": int,
+    "config": str,
+}
+
+
+def save_training_state(
+    path: str | os.PathLike,
+    *,
+    model: torch.nn.Module,
+    ppo: Any,
+    curriculum: Any,
+    counters: dict[str, Any],
+    config_yaml: str,
+    num_obs: int,
+    num_beams: int,
+    source: dict[str, Any] | None = None,
+) -> Path:
+    """Write a training checkpoint atomically (layout in the module doc)."""
+    state = {
+        "version": CHECKPOINT_VERSION,
+        "model": model.state_dict(),
+        "ppo": ppo.state_dict(),
+        "curriculum": curriculum.state_dict(),
+        "counters": dict(counters),
+        "rng": capture_rng(),
+        "num_obs": int(num_obs),
+        "num_beams": int(num_beams),
+        "config": config_yaml,
+        "source": dict(source or {}),
+    }
+    return save_checkpoint(path, state)
+
+
+def load_training_state(
+    path: str | os.PathLike, map_location: str | torch.device = "cpu"
+) -> dict[str, Any]:
+    """Load a training checkpoint and check it has every entry of :data:`TRAINING_KEYS`.
+
+    Raises:
+        CheckpointError: unreadable, not a truckrl checkpoint, or an entry missing or mistyped.
+    """
+    p = resolve_checkpoint(path)
+    state = load_checkpoint(p, map_location)
+    for key, typ in TRAINING_KEYS.items():
+        if not isinstance(state.get(key), typ):
+            raise CheckpointError(f"{p} is not a usable training checkpoint ({key!r} missing)")
+    state["path"] = p
+    return state

@@ -4,7 +4,8 @@ The collector hands over ``[..., T]`` batches (time last) of a set of environmen
 running across batches, so an episode may span two batches. :class:`EpisodeTracker` carries the
 running per-env sums of the reward terms over batch boundaries and reports, for the episodes that
 ended in a batch: the outcome rates, the episode length, the final errors and each reward term
-**summed over the episode** (averaged over the episodes that ended).
+**summed over the episode** (averaged over the episodes that ended). :func:`iteration_scalars`
+names everything one training iteration logs to TensorBoard.
 """
 
 from __future__ import annotations
@@ -15,9 +16,7 @@ import torch
 from tensordict import TensorDictBase
 from torch import Tensor
 
-from truckrl.env import ERROR_KEYS, REWARD_TERMS
-
-RETURN_KEYS = ("reward", *REWARD_TERMS)
+from truckrl.task import OUTCOMES, Quantity, shown
 
 
 def episode_sums(x: Tensor, done: Tensor, carry: Tensor) -> tuple[Tensor, Tensor]:
@@ -48,9 +47,16 @@ def episode_sums(x: Tensor, done: Tensor, carry: Tensor) -> tuple[Tensor, Tensor
 
 
 class EpisodeTracker:
-    """Turn each batch into episode statistics; carries reward-term sums across batches."""
+    """Turn each batch into episode statistics; carries reward-term sums across batches.
 
-    def __init__(self) -> None:
+    Args:
+        reward_keys: the task's reward-term keys (``Task.reward_keys``).
+        errors: the task's error quantities (``Task.error_quantities``).
+    """
+
+    def __init__(self, reward_keys: tuple[str, ...], errors: tuple[Quantity, ...]) -> None:
+        self.return_keys = ("reward", *reward_keys)
+        self.errors = errors
         self.carry: Tensor | None = None
 
     def reset(self) -> None:
@@ -59,14 +65,13 @@ class EpisodeTracker:
     def update(self, batch: TensorDictBase) -> dict[str, Tensor]:
         """Statistics of the episodes that ended in ``batch`` (``[*E, T]``), as 0-dim tensors.
 
-        Keys: "episodes", "success_rate", "collision_rate", "jackknife_rate", "timeout_rate",
-        "length" [steps], "final_pos_error" [m], "final_tractor_heading_error" [deg],
-        "final_trailer_heading_error" [deg], "return/<term>" (summed per episode), and
+        Keys: "episodes", "<outcome>_rate" for each outcome of the schema, "length" [steps],
+        "final_<error>" in its shown unit (m or deg), "return/<term>" (summed per episode), and
         "step/<term>" (mean per step over the batch). Rates and means are NaN without episodes.
         """
         nxt = batch["next"]
         done = nxt["done"].squeeze(-1)
-        x = torch.cat([nxt[k] for k in RETURN_KEYS], dim=-1).to(torch.float32)
+        x = torch.cat([nxt[k] for k in self.return_keys], dim=-1).to(torch.float32)
         if self.carry is None or self.carry.shape != x.shape[:-2] + x.shape[-1:]:
             self.carry = torch.zeros(*x.shape[:-2], x.shape[-1], device=x.device)
         sums, self.carry = episode_sums(x, done, self.carry)
@@ -78,20 +83,15 @@ class EpisodeTracker:
         def mean_at_done(v: Tensor) -> Tensor:
             return torch.where(n > 0, (v.squeeze(-1).to(torch.float32) * done).sum() / denom, nan)
 
-        out = {
-            "episodes": n.to(torch.float32),
-            "success_rate": mean_at_done(nxt["success"]),
-            "collision_rate": mean_at_done(nxt["collision"]),
-            "jackknife_rate": mean_at_done(nxt["jackknife"]),
-            "timeout_rate": mean_at_done(nxt["truncated"]),
-            "length": mean_at_done(nxt["step_count"]),
-            "final_pos_error": mean_at_done(nxt["pos_error"]),
-        }
-        for k in ERROR_KEYS[1:]:
-            out[f"final_{k}"] = mean_at_done(nxt[k]) * (180.0 / math.pi)
+        out = {"episodes": n.to(torch.float32)}
+        for o in OUTCOMES:
+            out[f"{o.name}_rate"] = mean_at_done(nxt[o.flag])
+        out["length"] = mean_at_done(nxt["step_count"])
+        for q in self.errors:
+            out[f"final_{q.key}"] = shown(q, mean_at_done(nxt[q.key]))
         ep = (sums * done[..., None]).sum(dim=tuple(range(done.dim()))) / denom
         step_mean = x.mean(dim=tuple(range(done.dim())))
-        for i, k in enumerate(RETURN_KEYS):
+        for i, k in enumerate(self.return_keys):
             out[f"return/{k}"] = torch.where(n > 0, ep[i], nan)
             out[f"step/{k}"] = step_mean[i]
         return out
@@ -106,3 +106,54 @@ def finished_in_time_order(batch: TensorDictBase, key: str) -> Tensor:
     done_t = done.movedim(-1, 0).reshape(-1)
     value_t = value.movedim(-1, 0).reshape(-1)
     return value_t[done_t]
+
+
+def iteration_scalars(
+    stats: dict[str, Tensor],
+    learn: dict[str, float],
+    curriculum: dict[str, float],
+    timing: dict[str, float],
+    errors: tuple[Quantity, ...],
+) -> dict[str, float]:
+    """Every TensorBoard scalar of one training iteration, by its logged name.
+
+    Args:
+        stats: :meth:`EpisodeTracker.update` output.
+        learn: the PPO update's metrics (losses, KL, lr, ...).
+        curriculum: difficulty, EMA, promotions and the current tolerances (position [m],
+            heading [deg]).
+        timing: ``perf/*`` figures.
+        errors: the task's error quantities (for the units in the names).
+
+    Returns:
+        ``{name: value}``; NaN values (no episode ended this iteration) are dropped.
+    """
+    keys = list(stats)
+    values = torch.stack([stats[k] for k in keys]).tolist()  # one device sync
+    v = dict(zip(keys, values, strict=True))
+    out = {"episode/count": v["episodes"], "episode/length": v["length"]}
+    out.update({f"episode/{o.name}_rate": v[f"{o.name}_rate"] for o in OUTCOMES})
+    for q in errors:
+        out[f"episode/final_{q.key}_{q.shown_unit}"] = v[f"final_{q.key}"]
+    for k in keys:
+        if k.startswith("return/"):
+            out[f"reward_episode/{k.removeprefix('return/')}"] = v[k]
+        elif k.startswith("step/"):
+            out[f"reward_step/{k.removeprefix('step/')}"] = v[k]
+    out["episode/success_ema"] = curriculum["ema"]
+    for k in ("loss_objective", "loss_critic", "loss_entropy"):
+        out[f"loss/{k.removeprefix('loss_')}"] = learn[k]
+    for k in ("entropy", "kl", "kl_approx", "clip_fraction", "grad_norm", "lr", "action_std"):
+        out[f"train/{k}"] = learn[k]
+    out["curriculum/difficulty"] = curriculum["difficulty"]
+    out["curriculum/promotions"] = curriculum["promotions"]
+    out["curriculum/tolerance_position_m"] = curriculum["tolerance_position_m"]
+    out["curriculum/tolerance_heading_deg"] = curriculum["tolerance_heading_deg"]
+    out.update(hparam_metrics(curriculum["difficulty"], curriculum["ema"]))
+    out.update(timing)
+    return {k: x for k, x in out.items() if math.isfinite(x)}
+
+
+def hparam_metrics(difficulty: float, ema: float) -> dict[str, float]:
+    """The metrics shown beside the hyper-parameters in TensorBoard's HPARAMS table."""
+    return {"hparam/difficulty": difficulty, "hparam/success_ema": ema}

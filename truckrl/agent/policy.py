@@ -1,4 +1,5 @@
-"""Rebuild a trained policy from a checkpoint: the one loader used by evaluation and the viewer."""
+"""Rebuild a trained policy from a checkpoint: the one loader used by evaluation, the viewer and
+export (through :func:`truckrl.agent.checkpoint.load_training_state`)."""
 
 from __future__ import annotations
 
@@ -8,12 +9,12 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from omegaconf import OmegaConf
+import yaml
 
-from truckrl.agent.checkpoint import CheckpointError, load_checkpoint, resolve_checkpoint
+from truckrl.agent.checkpoint import CheckpointError, load_training_state
 from truckrl.agent.network import ModelConfig, make_actor_critic
-from truckrl.env import EnvConfig
-from truckrl.sim.validation import ConfigError, from_mapping
+from truckrl.sim.validation import ConfigError, build
+from truckrl.task import EnvConfig
 
 
 @dataclass
@@ -23,7 +24,7 @@ class LoadedPolicy:
     Attributes:
         actor: TorchRL module reading "observation" and "lidar", writing "action" (the mean under
             ``ExplorationType.DETERMINISTIC``), in eval mode on the requested device.
-        env_config: the env/control config the policy was trained with.
+        env_config: the env config (task and control included) the policy was trained with.
         difficulty: the curriculum difficulty saved in the checkpoint.
         path: the checkpoint file.
         counters: training counters (iteration, frames, wall time).
@@ -36,18 +37,33 @@ class LoadedPolicy:
     counters: dict
 
 
+def saved_config(state: dict[str, Any]) -> dict[str, Any]:
+    """The training config saved in a checkpoint, as a plain mapping."""
+    try:
+        data = yaml.safe_load(state["config"])
+    except yaml.YAMLError as e:
+        raise CheckpointError(f"{state['path']}: saved config is not YAML ({e})") from None
+    if not isinstance(data, dict):
+        raise CheckpointError(f"{state['path']}: saved config is not a mapping")
+    return data
+
+
 def load_policy(checkpoint: str | os.PathLike, device: str | torch.device = "cpu") -> LoadedPolicy:
     """Load a training checkpoint (file or run dir) and rebuild its actor.
 
     Raises:
         CheckpointError: missing, corrupt, or weights that do not fit the saved config.
     """
-    path = resolve_checkpoint(checkpoint)
-    state = load_checkpoint(path, map_location=device)
+    state = load_training_state(checkpoint, map_location=device)
+    path = state["path"]
+    saved = saved_config(state)
     try:
-        saved = OmegaConf.create(state["config"])
-        env_cfg = EnvConfig.from_hydra(saved.env, saved.control)
-        model_cfg = from_mapping(ModelConfig, OmegaConf.to_container(saved.model), "model")
+        env_cfg = build(EnvConfig, saved.get("env"), "env")
+        model_cfg = build(ModelConfig, saved.get("model"), "model")
+        if env_cfg.lidar.num_beams != state["num_beams"]:
+            raise ValueError(
+                f"num_beams {state['num_beams']} != env.lidar.num_beams {env_cfg.lidar.num_beams}"
+            )
         ac = make_actor_critic(model_cfg, int(state["num_obs"]), int(state["num_beams"]))
         ac.model.load_state_dict(state["model"])
         difficulty = float(state["curriculum"]["difficulty"])

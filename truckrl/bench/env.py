@@ -20,7 +20,8 @@ import torch
 from torchrl.envs import EnvBase, ParallelEnv
 
 from truckrl.bench.report import print_table, write_json
-from truckrl.env import EnvConfig, TruckEnv
+from truckrl.env import TruckEnv
+from truckrl.task import NUM_FEATURES, EnvConfig
 
 TARGET_STEPS_PER_S = 100_000  # issue target on a 2-core CPU, 16 beams
 TARGET_RATIO_VS_PAPER = 30.0  # best config >= 30x the paper layout in the same run
@@ -146,7 +147,7 @@ def _collector_rows(args: argparse.Namespace, compiled: bool) -> list[dict]:
     from torchrl.collectors import Collector
 
     from truckrl.agent.network import ModelConfig, make_actor_critic
-    from truckrl.env import NUM_FEATURES
+
 
     rows = []
     for n in args.parallel_envs:

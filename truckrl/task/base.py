@@ -96,9 +96,7 @@ class Task:
         self.control = Control(cfg.control, cfg.dt, min_speed=cfg.vehicle.min_speed)
         self.rel_angles = beam_angles(cfg.lidar.num_beams, cfg.lidar.fov)
         lon, lat = _LON_LIMIT[cfg.control.longitudinal], _LAT_LIMIT[cfg.control.lateral]
-        self.param_index = torch.tensor(
-            [PARAM_KEYS.index(k) for k in (*OBSERVED_PARAMS, lon, lat)]
-        )
+        self.param_index = torch.tensor([PARAM_KEYS.index(k) for k in (*OBSERVED_PARAMS, lon, lat)])
 
     @property
     def error_keys(self) -> tuple[str, ...]:
@@ -232,7 +230,12 @@ class Task:
         lidar, pose = self.cfg.lidar, s["pose"]
         origin = sensor_origin(pose, s["params"])
         return lidar_scan(
-            origin, pose[:, 2], s["segments"], s["mask"], self.rel_angles, lidar.max_range,
+            origin,
+            pose[:, 2],
+            s["segments"],
+            s["mask"],
+            self.rel_angles,
+            lidar.max_range,
             lidar.method,
         )
 

@@ -8,8 +8,8 @@ structured configs (``truckrl/entry.py``); YAML files only hold presets.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 from truckrl.sim.control import ControlConfig
@@ -37,15 +37,28 @@ class ToleranceConfig:
     """Goal tolerances at difficulty 0 and the starting difficulty (paper, "Curriculum")."""
 
     position: float = param(
-        30.0, lo=0.0, hi=1e4, lo_open=True, unit="m", doc="position tolerance at difficulty 0",
+        30.0,
+        lo=0.0,
+        hi=1e4,
+        lo_open=True,
+        unit="m",
+        doc="position tolerance at difficulty 0",
         source="paper",
     )
     heading_deg: float = param(
-        60.0, lo=0.0, hi=180.0, lo_open=True, unit="deg",
-        doc="heading tolerance at difficulty 0", source="paper",
+        60.0,
+        lo=0.0,
+        hi=180.0,
+        lo_open=True,
+        unit="deg",
+        doc="heading tolerance at difficulty 0",
+        source="paper",
     )
     difficulty: float = param(
-        0.0, lo=0.0, hi=MAX_DIFFICULTY, unit="-",
+        0.0,
+        lo=0.0,
+        hi=MAX_DIFFICULTY,
+        unit="-",
         doc="starting difficulty d; tolerances scale by 2**-d",
     )
 
@@ -68,14 +81,18 @@ class EnvConfig:
     )
     substeps: int = param(1, lo=1, hi=1000, unit="-", doc="Euler sub-steps per dt (1 = paper)")
     nonfinite_action: str = param(
-        "zero", choices=("zero", "error"),
+        "zero",
+        choices=("zero", "error"),
         doc="zero: replace NaN/inf actions by 0 and flag them; error: raise (syncs every step)",
     )
     compile: bool = param(
         False, doc="torch.compile the step and observation (~20 s per process, fast for big N)"
     )
     episode_pool: int = param(
-        256, lo=1, hi=1_000_000, unit="episodes",
+        256,
+        lo=1,
+        hi=1_000_000,
+        unit="episodes",
         doc="episodes generated per refill of the reset pool (batched generation is cheaper)",
     )
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)

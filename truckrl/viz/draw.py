@@ -271,3 +271,48 @@ def draw_scene(
         cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
         cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, COLORS["hud"], 1, cv2.LINE_AA)
     return img
+
+
+def draw_state(
+    state,
+    lidar,
+    rel_angles,
+    tolerance: tuple[float, float] | None = None,
+    **draw_kwargs,
+) -> np.ndarray:
+    """Draw one truck's state snapshot: scene, truck, goal, tolerance and its last LiDAR scan.
+
+    Reads the state only (no physics, no scan): the beams are the ranges the env observed.
+
+    Args:
+        state: one truck's state (``TruckEnv.get_state()[i]``: pose, goal, segments, mask, kind,
+            params; layout in :mod:`truckrl.task.base`).
+        lidar: ``[R]`` ranges [m] of that state (the observation's ``lidar`` times the max range).
+        rel_angles: ``[R]`` beam directions relative to the tractor heading [rad].
+        tolerance: ``(position [m], heading [rad])`` goal tolerance, or None.
+        **draw_kwargs: passed to :func:`draw_scene` (``hud_lines``, ``size_px``, ``center``, ...);
+            the view is centred on the tractor rear axle unless ``center`` is given.
+
+    Returns:
+        ``[H, W, 3]`` uint8 RGB image.
+    """
+    from truckrl.sim.vehicle import truck_corners
+    from truckrl.task.base import sensor_origin
+
+    s = state.unsqueeze(0) if state.batch_dims == 0 else state
+    tractor, trailer, _ = truck_corners(s["pose"], s["params"])
+    origin = sensor_origin(s["pose"], s["params"])
+    kwargs = {"center": s["pose"][0, :2].cpu(), **draw_kwargs}
+    return draw_scene(
+        s["segments"][0].cpu(),
+        s["mask"][0].cpu(),
+        s["kind"][0].cpu(),
+        tractor=tractor[0].cpu(),
+        trailer=trailer[0].cpu(),
+        goal=s["goal"][0].cpu(),
+        goal_tolerance=tolerance,
+        lidar_origin=origin[0].cpu(),
+        lidar_ranges=_np(lidar).reshape(-1),
+        lidar_angles=(rel_angles.to(s["pose"].device) + s["pose"][0, 2]).cpu(),
+        **kwargs,
+    )

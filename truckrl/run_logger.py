@@ -1,5 +1,8 @@
 """TensorBoard output of a training run: scalars, the config, hyper-parameters and videos.
 
+This module sits beside the entry points (above ``agent``): it draws, and drawing reads states
+only, through :mod:`truckrl.viz`.
+
 Events go to ``<run_dir>/tb``; the global step is the number of environment frames. A resumed
 run opens the same directory with ``purge_step`` = the checkpoint's frame count + 1, so TensorBoard
 drops whatever the killed run logged after its last checkpoint and the curves continue seamlessly.
@@ -11,13 +14,20 @@ frames is logged as the image ``video/rollout``.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
+from tensordict.nn import TensorDictModuleBase
 from torch.utils.tensorboard import SummaryWriter
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from truckrl.env import TruckEnv
+from truckrl.task import EnvConfig
+from truckrl.viz.draw import draw_state
 from truckrl.viz.video import frame_strip, write_mp4
 
 
@@ -68,3 +78,36 @@ class RunLogger:
 
     def close(self) -> None:
         self.writer.close()
+
+
+@torch.no_grad()
+def record_episode(
+    actor: TensorDictModuleBase,
+    env_cfg: EnvConfig,
+    difficulty: float,
+    seed: int,
+    max_frames: int,
+    device: str | torch.device = "cpu",
+) -> np.ndarray:
+    """Frames ``[F, H, W, 3]`` uint8 RGB of one deterministic episode (stops at its end)."""
+    env_cfg = dataclasses.replace(env_cfg, compile=False)  # one truck: compiling does not pay
+    env = TruckEnv(num_envs=1, device=device, config=env_cfg, seed=seed)
+    env.set_difficulty(difficulty)
+    tol_pos, tol_ang = (float(x[0]) for x in env.tolerances())
+    max_range = env_cfg.lidar.max_range
+
+    def frame(td) -> np.ndarray:
+        s = env.get_state()[0]
+        return draw_state(s, td["lidar"][0] * max_range, env.task.rel_angles, (tol_pos, tol_ang))
+
+    td = env.reset()
+    frames = [frame(td)]
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        for _ in range(max(0, max_frames - 1)):
+            nxt = env.step(actor(td))["next"]
+            frames.append(frame(nxt))
+            if bool(nxt["done"].any()):
+                break
+            td = nxt
+    env.close()
+    return np.stack(frames)

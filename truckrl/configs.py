@@ -1,0 +1,235 @@
+"""Top-level configs of the entry points and their registration as Hydra structured configs.
+
+Every default lives in a dataclass field (:func:`truckrl.sim.validation.param`: default, range,
+unit, meaning); YAML files under ``conf/`` hold only presets that differ from them (``ppo/fast``,
+``experiment/*``, ``control/*``, ``curriculum/none``, ``launch/*``). ``python -m truckrl.configs
+[PREFIX]`` prints every field as a table (what the README's configuration section points to).
+
+Hydra groups (``register()``): ``task`` (one per task module, placed at ``env.task``), ``ppo``,
+``curriculum``, ``model`` (``paper`` = the dataclass defaults) and the schemas ``train_schema``,
+``evaluate_schema``, ``play_schema`` that the primary configs extend.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from typing import Any
+
+from truckrl.agent.curriculum import CurriculumConfig
+from truckrl.agent.network import ModelConfig
+from truckrl.agent.ppo import PPOConfig
+from truckrl.runner import ViewConfig
+from truckrl.sim.validation import ConfigError, param, spec_table, validate
+from truckrl.task import MAX_DIFFICULTY, EnvConfig, task_class, task_names
+from truckrl.viz.keyboard import KeyboardConfig
+
+SEED_MAX = 2**62
+
+
+@dataclass
+class CollectorConfig:
+    """Rollout shape: ``workers`` processes x ``num_envs`` trucks x ``steps_per_env`` steps."""
+
+    workers: int = param(1, lo=1, hi=4096, unit="processes", doc="ParallelEnv workers (1: none)")
+    num_envs: int = param(
+        24, lo=1, hi=10_000_000, unit="trucks", doc="trucks per worker", source="paper"
+    )
+    steps_per_env: int = param(
+        512, lo=1, hi=1_000_000, unit="steps", doc="steps per truck per iteration", source="paper"
+    )
+
+    @property
+    def frames_per_batch(self) -> int:
+        return self.workers * self.num_envs * self.steps_per_env
+
+
+@dataclass
+class LogConfig:
+    """TensorBoard and console output."""
+
+    interval: int = param(1, lo=1, hi=1e9, unit="iterations", doc="between scalar writes")
+    video_interval: int = param(
+        50, lo=0, hi=1e9, unit="iterations", doc="between rollout videos (0: never)"
+    )
+    video_steps: int = param(200, lo=1, hi=100_000, unit="frames", doc="max frames per video")
+    video_fps: float = param(10.0, lo=0.0, hi=1000.0, lo_open=True, unit="1/s", doc="video rate")
+    progress_bar: bool = param(True, doc="tqdm progress bar")
+
+
+@dataclass
+class CheckpointConfig:
+    """Checkpoint cadence."""
+
+    interval: int = param(10, lo=1, hi=1e9, unit="iterations", doc="between writes of last.pt")
+    keep_every: int = param(
+        0, lo=0, hi=1e9, unit="iterations", doc="also keep iter_XXXXXX.pt every N (0: never)"
+    )
+
+
+@dataclass
+class TrainConfig:
+    """``python -m truckrl.train``: everything a training run reads."""
+
+    seed: int = param(0, lo=0, hi=SEED_MAX, doc="torch/numpy/python seed; env seeds derive from it")
+    device: str = param("cpu", doc="env and policy device: cpu | cuda")
+    total_frames: int | None = param(
+        500_000_000, lo=1, hi=1e15, unit="frames", doc="stop after this many frames (all sessions)"
+    )
+    max_minutes: float | None = param(
+        None, lo=0.0, hi=1e7, lo_open=True, unit="min", doc="stop after this long (this session)"
+    )
+    stop_difficulty: float | None = param(
+        None, lo=0.0, hi=MAX_DIFFICULTY, doc="stop once the curriculum reaches this difficulty"
+    )
+    resume: str | None = param(None, doc="checkpoint file or run dir to continue")
+    env: EnvConfig = field(default_factory=EnvConfig)
+    collector: CollectorConfig = field(default_factory=CollectorConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
+    log: LogConfig = field(default_factory=LogConfig)
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+
+    def __post_init__(self) -> None:
+        validate(self)
+        check_device("device", self.device)
+        if self.total_frames is None and self.max_minutes is None:
+            raise ConfigError("set total_frames and/or max_minutes (both are null)")
+        self.ppo.check_batch(self.collector.frames_per_batch)
+
+
+@dataclass
+class EvaluateConfig:
+    """``python -m truckrl.evaluate``: deterministic evaluation of a checkpoint."""
+
+    checkpoint: str | None = param(None, doc="checkpoint file or run dir (required)")
+    difficulty: float | None = param(
+        None, lo=0.0, hi=MAX_DIFFICULTY, doc="null: the checkpoint's curriculum difficulty"
+    )
+    episodes: int = param(100, lo=1, hi=10_000_000, doc="one episode per seeded scene")
+    seed: int = param(12345, lo=0, hi=SEED_MAX, doc="scene seed: same seed, same scenes")
+    device: str = param("cpu", doc="env and policy device")
+    output: str | None = param(None, doc="JSON file; null: <hydra run dir>/eval.json")
+
+    def __post_init__(self) -> None:
+        validate(self)
+        check_device("device", self.device)
+        if not self.checkpoint:
+            raise ConfigError("checkpoint is required: checkpoint=<file or run dir>")
+
+
+ON_DONE = ("new", "same", "wait")
+
+
+@dataclass
+class PlayConfig:
+    """``python -m truckrl.play``: the viewer (keyboard, policy, replay or random driving)."""
+
+    seed: int = param(0, lo=0, hi=SEED_MAX, doc="scene seed (as TruckEnv(seed=...))")
+    device: str = param("cpu", doc="env and policy device")
+    threads: int = param(1, lo=1, hi=1024, doc="torch CPU threads (one truck gains nothing more)")
+    checkpoint: str | None = param(None, doc="checkpoint file or run dir: watch its policy")
+    actions: str | None = param(None, doc="key script (text) or .npy [F, 2] action array")
+    headless: bool = param(False, doc="no window; stops after `episodes` (default 1)")
+    record: str | None = param(None, doc="mp4 file: every frame shown (view + HUD)")
+    strip: str | None = param(None, doc="png file: evenly spaced views side by side")
+    strip_frames: int = param(5, lo=1, hi=100, doc="tiles in the strip")
+    strip_height: int = param(300, lo=16, hi=4096, unit="px", doc="height of each strip tile")
+    difficulty: float | None = param(
+        None, lo=0.0, hi=MAX_DIFFICULTY, doc="null: env.tolerance.difficulty or the checkpoint's"
+    )
+    difficulty_step: float = param(
+        0.5, lo=0.0, hi=MAX_DIFFICULTY, lo_open=True, doc="change per +/- key (curriculum step)"
+    )
+    fps: float | None = param(
+        None, lo=0.0, hi=1000.0, lo_open=True, unit="1/s", doc="null: real time, 1 / env.dt"
+    )
+    max_frames: int | None = param(None, lo=1, hi=1e9, doc="stop after this many frames")
+    episodes: int | None = param(None, lo=1, hi=1e9, doc="stop after this many episodes")
+    on_done: str = param("new", choices=ON_DONE, doc="after an episode: new | same | wait")
+    done_hold_s: float = param(1.0, lo=0.0, hi=3600.0, unit="s", doc="show a finished episode")
+    env: EnvConfig = field(default_factory=EnvConfig)
+    view: ViewConfig = field(default_factory=ViewConfig)
+    keyboard: KeyboardConfig = field(default_factory=KeyboardConfig)
+
+    def __post_init__(self) -> None:
+        validate(self)
+        check_device("device", self.device)
+        if self.checkpoint and self.actions:
+            raise ConfigError("give checkpoint or actions, not both")
+
+
+def check_device(name: str, device: str) -> None:
+    """Raise :class:`ConfigError` unless ``device`` names a torch device."""
+    import torch
+
+    try:
+        torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ConfigError(
+            f"{name} = {device!r} is not a torch device (cpu, cuda, cuda:1)"
+        ) from None
+
+
+def structured(cls: type) -> Any:
+    """``cls`` as an OmegaConf structured node whose list fields accept overrides.
+
+    OmegaConf makes tuple-typed fields and frozen dataclasses read-only; the ``[min, max]`` ranges,
+    layer widths and frozen configs must take command-line overrides
+    (``env.task.scene.road_width=[12,18]``), so the flag is cleared. Element types are still
+    checked at composition; ranges by :func:`validate` when the config is built.
+    """
+    from omegaconf import DictConfig, ListConfig, OmegaConf
+
+    node = OmegaConf.structured(cls)
+
+    def writable(n: Any) -> None:
+        OmegaConf.set_readonly(n, False)
+        keys = n.keys() if isinstance(n, DictConfig) else range(len(n))
+        for k in keys:
+            child = n._get_node(k)
+            if isinstance(child, DictConfig | ListConfig):
+                writable(child)
+
+    writable(node)
+    return node
+
+
+def register() -> None:
+    """Register the schemas and the structured config groups with Hydra's ConfigStore."""
+    from hydra.core.config_store import ConfigStore
+
+    cs = ConfigStore.instance()
+    cs.store(name="train_schema", node=structured(TrainConfig))
+    cs.store(name="evaluate_schema", node=structured(EvaluateConfig))
+    cs.store(name="play_schema", node=structured(PlayConfig))
+    for name in task_names():
+        node = structured(task_class(name).config_class)
+        cs.store(group="task", name=name, node=node, package="env.task")
+    cs.store(group="ppo", name="paper", node=structured(PPOConfig), package="ppo")
+    cs.store(
+        group="curriculum", name="paper", node=structured(CurriculumConfig), package="curriculum"
+    )
+    cs.store(group="model", name="paper", node=structured(ModelConfig), package="model")
+
+
+def main(argv: list[str]) -> int:
+    """Print every config field (name, default, unit, allowed, meaning), optionally filtered."""
+    prefix = argv[0] if argv else ""
+    rows = []
+    for root, cls in (("", TrainConfig), ("play", PlayConfig), ("evaluate", EvaluateConfig)):
+        for row in spec_table(cls, root):
+            if row[0].startswith(prefix) and row not in rows:
+                rows.append(row)
+    if not rows:
+        print(f"no config field starts with {prefix!r}", file=sys.stderr)
+        return 2
+    width = [max(len(r[i]) for r in rows) for i in range(4)]
+    for r in rows:
+        print("  ".join(r[i].ljust(width[i]) for i in range(4)) + "  " + r[4])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
