@@ -1,4 +1,5 @@
-"""TruckEnv: TorchRL spec checks, hand-computed rewards, resets, seeding, control modes."""
+"""TruckEnv through its public API: TorchRL spec checks, hand-computed rewards, resets, seeding,
+state get/set, vehicle params, control modes."""
 
 import itertools
 import math
@@ -8,14 +9,15 @@ import torch
 from torchrl.envs import ParallelEnv
 from torchrl.envs.utils import check_env_specs
 
-from truckrl.env import NUM_FEATURES, REWARD_TERMS, EnvConfig, TruckEnv
-from truckrl.sim.control import LATERAL_MODES, LONGITUDINAL_MODES
+from truckrl.env import TruckEnv
+from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES
 from truckrl.sim.validation import ConfigError
 from truckrl.sim.vehicle import truck_corners
+from truckrl.task import NUM_FEATURES, EnvConfig
 
 
 def make(n=4, seed=0, **cfg):
-    return TruckEnv(num_envs=n, config=EnvConfig(**cfg), seed=seed)
+    return TruckEnv(num_envs=n, config=cfg, seed=seed)
 
 
 @pytest.mark.parametrize("n", [1, 7, 256])
@@ -45,25 +47,28 @@ def test_parallel_env_specs_and_distinct_workers():
         penv.close()
 
 
-def _clear_scene(env, goal=(40.0, 0.0, 0.0)):
-    """Place every truck at the origin heading +x, at rest, with no obstacles and the given goal."""
-    s = env._state
+def clear_scene(env, goal=(40.0, 0.0, 0.0), **overrides):
+    """Start every truck at the origin heading +x, at rest, with no segments and ``goal``;
+    ``overrides`` set state entries (e.g. ``speed``). Returns the reset tensordict."""
+    s = env.get_state()
     n = env.num_envs
     s["pose"] = torch.zeros(n, 4)
     s["goal"] = torch.tensor(goal).expand(n, 3).clone()
     s["mask"] = torch.zeros_like(s["mask"])
-    for k in ("speed", "accel", "jerk", "steer", "steer_rate", "steer_accel"):
+    for k in CONTROL_KEYS:
         s[k] = torch.zeros(n)
-    s.update(env._errors(s["pose"], s["goal"]))
+    for k, v in overrides.items():
+        s[k] = v
+    s.update(env.task.errors(s["pose"], s["goal"]))
+    return env.set_state(s)
 
 
 def test_progress_reward_driving_straight_at_goal():
     env = make(3, control={"longitudinal": "speed", "lateral": "angle"})
-    td = env.reset()
-    _clear_scene(env, goal=(40.0, 0.0, 0.0))
-    vmax = env._state["params", "max_speed"].clone()
-    td = env.step(td.set("action", torch.tensor([[1.0, 0.0]] * 3)))
-    nxt = td["next"]
+    env.reset()
+    td = clear_scene(env, goal=(40.0, 0.0, 0.0))
+    vmax = env.params["max_speed"].clone()
+    nxt = env.step(td.set("action", torch.tensor([[1.0, 0.0]] * 3)))["next"]
     # speed mode: +1 commands max_speed; one Euler step moves the rear axle v*dt toward the goal
     expected = 0.05 * vmax * 0.1
     torch.testing.assert_close(nxt["r_progress"][:, 0], expected, atol=1e-5, rtol=1e-5)
@@ -74,29 +79,26 @@ def test_progress_reward_driving_straight_at_goal():
 
 def test_heading_correction_reward():
     env = make(2, control={"longitudinal": "accel", "lateral": "rate"})
-    td = env.reset()
-    _clear_scene(env, goal=(40.0, 0.0, 0.0))
-    env._state["pose"][:, 2] = 0.3  # tractor and trailer both 0.3 rad off the goal heading
-    env._state.update(env._errors(env._state["pose"], env._state["goal"]))
-    env._state["speed"] = torch.full((2,), 5.0)
-    td = env.step(td.set("action", torch.tensor([[0.0, -1.0]] * 2)))
-    p = env._state["pose"]
+    env.reset()
+    pose = torch.tensor([[0.0, 0.0, 0.3, 0.0]] * 2)  # tractor and trailer 0.3 rad off the goal
+    td = clear_scene(env, pose=pose, speed=torch.full((2,), 5.0))
+    nxt = env.step(td.set("action", torch.tensor([[0.0, -1.0]] * 2)))["next"]
+    p = env.get_state()["pose"]
     d_tractor = 0.3 - p[:, 2].abs()
     d_trailer = 0.3 - (p[:, 2] + p[:, 3]).abs()
-    torch.testing.assert_close(td["next", "r_tractor_heading"][:, 0], 0.5 * d_tractor)
-    torch.testing.assert_close(td["next", "r_trailer_heading"][:, 0], 0.5 * d_trailer)
+    torch.testing.assert_close(nxt["r_tractor_heading"][:, 0], 0.5 * d_tractor)
+    torch.testing.assert_close(nxt["r_trailer_heading"][:, 0], 0.5 * d_trailer)
 
 
 def test_success_gives_plus_five_and_terminates():
     env = make(2, control={"longitudinal": "speed", "lateral": "angle"})
-    td = env.reset()
-    _clear_scene(env, goal=(0.5, 0.0, 0.0))
+    env.reset()
     env.set_difficulty(6.0)  # 0.47 m and 0.94 deg: the paper's hardest level
-    td = env.step(td.set("action", torch.tensor([[-1.0, 0.0]] * 2)))  # stay at rest
-    assert not td["next", "success"].any()
-    _clear_scene(env, goal=(0.3, 0.0, 0.0))
-    td = env.step(td.set("action", torch.tensor([[-1.0, 0.0]] * 2)))
-    nxt = td["next"]
+    td = clear_scene(env, goal=(0.5, 0.0, 0.0))
+    nxt = env.step(td.set("action", torch.tensor([[-1.0, 0.0]] * 2)))["next"]  # stay at rest
+    assert not nxt["success"].any()
+    td = clear_scene(env, goal=(0.3, 0.0, 0.0))
+    nxt = env.step(td.set("action", torch.tensor([[-1.0, 0.0]] * 2)))["next"]
     assert nxt["success"].all() and nxt["terminated"].all() and nxt["done"].all()
     assert torch.all(nxt["r_success"] == 5.0)
     assert not nxt["truncated"].any()
@@ -105,21 +107,20 @@ def test_success_gives_plus_five_and_terminates():
 @pytest.mark.parametrize("kind", [0, 1])
 def test_collision_with_curb_or_obstacle(kind):
     env = make(1, control={"longitudinal": "speed", "lateral": "angle"})
-    td = env.reset()
-    _clear_scene(env)
-    tractor, _, _ = truck_corners(env._state["pose"], env._state["params"])
+    env.reset()
+    clear_scene(env)
+    s = env.get_state()
+    tractor, _, _ = truck_corners(s["pose"], s["params"])
     bumper = float(tractor[0, :, 0].max())
-    wall = torch.tensor([bumper + 0.2, -5.0, bumper + 0.2, 5.0])  # 0.2 m ahead of the bumper
-    env._state["segments"][0, 0] = wall
-    env._state["mask"][0, 0] = True
-    env._state["kind"][0, 0] = kind
-    td = env.step(td.set("action", torch.tensor([[1.0, 0.0]])))  # >= 0.6 m per step
-    nxt = td["next"]
+    s["segments"][0, 0] = torch.tensor([bumper + 0.2, -5.0, bumper + 0.2, 5.0])  # 0.2 m ahead
+    s["mask"][0, 0] = True
+    s["kind"][0, 0] = kind
+    td = env.set_state(s)
+    nxt = env.step(td.set("action", torch.tensor([[1.0, 0.0]])))["next"]  # >= 0.6 m per step
     assert nxt["collision"].all() and nxt["terminated"].all()
     assert float(nxt["r_collision"]) == -7.0
-    torch.testing.assert_close(
-        nxt["reward"], sum(nxt[k] for k in REWARD_TERMS), msg="terms must sum to the reward"
-    )
+    terms = sum(nxt[k] for k in env.task.reward_keys)
+    torch.testing.assert_close(nxt["reward"], terms, msg="terms must sum to the reward")
 
 
 def test_timeout_after_200_steps():
@@ -128,8 +129,7 @@ def test_timeout_after_200_steps():
     env.set_difficulty(20.0)  # no accidental success
     action = torch.zeros(2, 2)  # at rest forever
     for step in range(1, 201):
-        td = env.step(td.set("action", action))
-        nxt = td["next"]
+        nxt = env.step(td.set("action", action))["next"]
         if step < 200:
             assert not nxt["done"].any(), step
             td = nxt
@@ -143,10 +143,10 @@ def test_partial_reset_keeps_other_envs_bit_for_bit():
     td = env.reset()
     for _ in range(5):
         td = env.step(td.set("action", env.action_spec.rand()))["next"]
-    before = env._state.clone()
+    before = env.get_state()
     reset = torch.tensor([False, True, False, False, True, False])
     env.reset(td.set("_reset", reset[:, None]))
-    after = env._state
+    after = env.get_state()
     keep = ~reset
     for key in before.keys(include_nested=True, leaves_only=True):
         assert torch.equal(before[key][keep], after[key][keep]), key
@@ -162,20 +162,30 @@ def test_same_seed_same_observations_different_seed_differs():
     assert not torch.equal(a["observation"], c["observation"])
 
 
-def test_reset_to_replays_the_saved_start_and_keeps_the_scene_sequence():
+def test_set_state_replays_the_saved_start_and_keeps_the_scene_sequence():
     env, twin = make(2, seed=9), make(2, seed=9)
     first = env.reset()
-    start = torch.stack([env.state_of(i) for i in range(2)])
+    start = env.get_state()
     for _ in range(4):
         env.step(first.clone().set("action", torch.ones(2, 2)))
-    again = env.reset_to(start)
+    again = env.set_state(start)
     assert torch.equal(again["observation"], first["observation"])
     assert torch.equal(again["lidar"], first["lidar"])
-    assert torch.all(env.state_of(0)["step_count"] == 0)
+    assert torch.all(env.get_state()["step_count"] == 0)
     twin.reset()
     assert torch.equal(env.reset()["observation"], twin.reset()["observation"])  # next scenes agree
     with pytest.raises(ValueError, match="batch size"):
-        env.reset_to(start[:1])
+        env.set_state(start[:1])
+
+
+def test_params_are_readable_and_writable():
+    env = make(3, control={"longitudinal": "speed", "lateral": "angle"})
+    env.reset()
+    td = clear_scene(env)
+    env.params["max_speed"][:] = torch.tensor([4.0, 6.0, 8.0])  # write: takes effect next step
+    env.step(td.set("action", torch.tensor([[1.0, 0.0]] * 3)))
+    torch.testing.assert_close(env.get_state()["speed"], torch.tensor([4.0, 6.0, 8.0]))
+    assert env.params.batch_size == (3,)
 
 
 @pytest.mark.parametrize("lon,lat", list(itertools.product(LONGITUDINAL_MODES, LATERAL_MODES)))
@@ -186,7 +196,8 @@ def test_every_control_pairing_respects_bounds(lon, lat):
     for _ in range(30):
         action = torch.rand(16, 2, generator=gen) * 4 - 2  # outside [-1, 1] on purpose
         td = env.step(td.set("action", action))["next"]
-        s, p = env._state, env._state["params"]
+        s = env.get_state()
+        p = s["params"]
         assert torch.all(s["speed"] <= p["max_speed"] + 1e-5)
         assert torch.all(s["speed"] >= env.config.vehicle.min_speed - 1e-5)
         assert torch.all(s["steer"].abs() <= p["max_steer"] + 1e-5)
@@ -202,10 +213,10 @@ def test_nonfinite_actions_are_zeroed_and_flagged():
     action = torch.tensor([[math.nan, 0.5], [0.2, math.inf], [0.3, 0.1]])
     td = env.step(td.set("action", action))["next"]
     assert td["action_nonfinite"][:, 0].tolist() == [True, True, False]
-    for key in env._state.keys(include_nested=True, leaves_only=True):
-        v = env._state[key]
-        if v.is_floating_point():
-            assert torch.isfinite(v).all(), key
+    s = env.get_state()
+    for key in s.keys(include_nested=True, leaves_only=True):
+        if s[key].is_floating_point():
+            assert torch.isfinite(s[key]).all(), key
     strict = make(2, nonfinite_action="error")
     td = strict.reset()
     with pytest.raises(ValueError, match="non-finite action"):
@@ -222,32 +233,25 @@ def test_difficulty_sets_paper_tolerances():
         env.set_difficulty(-1.0)
 
 
-def test_bad_config_names_the_field():
-    with pytest.raises(ConfigError, match="env.dt"):
-        EnvConfig(dt=0.0)
-    with pytest.raises(ConfigError, match="env.max_steps"):
-        EnvConfig(max_steps=0)
-    with pytest.raises(ConfigError, match="control.longitudinal"):
-        EnvConfig(control={"longitudinal": "warp", "lateral": "rate"})
-    with pytest.raises(ConfigError, match="unknown field"):
-        EnvConfig(reward={"progres": 1.0})
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"dt": 0.0}, "env.dt"),
+        ({"max_steps": 0}, "env.max_steps"),
+        ({"max_steps": 200.5}, "env.max_steps"),
+        ({"substeps": 1.5}, "env.substeps"),
+        ({"control": {"longitudinal": "warp", "lateral": "rate"}}, "control.longitudinal"),
+        ({"task": {"reward": {"progres": 1.0}}}, "unknown field"),
+        ({"task": {"name": "nosuchtask"}}, "env.task.name"),
+        ({"vehicle": "default"}, "env.vehicle"),
+    ],
+)
+def test_bad_config_names_the_field(kwargs, field):
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        EnvConfig(**kwargs)
+
+
+@pytest.mark.parametrize("n", [0, 2.5, "4", True])
+def test_bad_num_envs(n):
     with pytest.raises(ConfigError, match="num_envs"):
-        TruckEnv(num_envs=0)
-
-
-def test_render_frame_is_rgb_image():
-    env = make(2)
-    env.reset()
-    img = env.render_frame(1)
-    assert img.ndim == 3 and img.shape[2] == 3 and img.dtype.name == "uint8"
-    assert img.std() > 0
-
-
-def test_render_frame_center_override():
-    env = make(1)
-    env.reset()
-    far = env.state_of(0)["pose"][:2] + 1e4  # nothing drawn within 10 km of this point
-    img = env.render_frame(0, center=far, size_px=64)
-    assert img.shape == (64, 64, 3)
-    assert (img == img[0, 0]).all()
-    assert not (env.render_frame(0, size_px=64) == img[0, 0]).all()
+        TruckEnv(num_envs=n)

@@ -247,6 +247,10 @@ def validate(obj: Any, where: str = "") -> None:
         if dataclasses.is_dataclass(value) and not isinstance(value, type):
             validate(value, name)
             continue
+        hint = hints[f.name]
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+            object.__setattr__(obj, f.name, build(hint, value, name))
+            continue
         spec = f.metadata.get("spec")
         if spec is None:
             continue

@@ -1,0 +1,80 @@
+"""Shared test fixtures: one tiny checkpoint, Hydra composition, and the CLI runner.
+
+Subprocess tests of the real entry points are marked ``e2e`` (kept in the default suite); they
+pass ``env.compile=false`` because compiling the step costs ~20 s per process.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import asdict
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+from hydra import compose, initialize_config_dir
+
+from truckrl.agent.checkpoint import save_training_state
+from truckrl.agent.curriculum import Curriculum
+from truckrl.agent.network import make_actor_critic
+from truckrl.agent.ppo import PPO
+from truckrl.cli import CONFIG_PATH, to_config
+from truckrl.configs import TrainConfig, register
+
+ROOT = Path(__file__).resolve().parent.parent
+#: Overrides that make a training run take seconds.
+TINY_TRAIN = [
+    "collector.num_envs=16",
+    "collector.steps_per_env=16",
+    "ppo.num_minibatches=2",
+    "ppo.num_epochs=1",
+    "log.video_interval=0",
+    "log.progress_bar=false",
+    "env.compile=false",
+]
+TINY_BATCH = 16 * 16  # frames per iteration with TINY_TRAIN
+
+
+def compose_config(name: str, *overrides: str):
+    """The Hydra config ``conf/<name>.yaml`` composed with ``overrides`` (no run dir)."""
+    register()
+    with initialize_config_dir(config_dir=CONFIG_PATH, version_base=None):
+        return compose(name, overrides=list(overrides))
+
+
+def run_cli(module: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    """``python -m truckrl.<module> args...`` from the repo root; output captured."""
+    return subprocess.run(
+        [sys.executable, "-m", f"truckrl.{module}", *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+@pytest.fixture(scope="session")
+def tiny_checkpoint(tmp_path_factory):
+    """A checkpoint in the format training writes (untrained weights, 40-step episodes).
+
+    Returns ``(run_dir, actor_critic, train_config)``.
+    """
+    cfg = compose_config("train", "env.max_steps=40", "env.compile=false", "collector.num_envs=4")
+    tc = to_config(TrainConfig, cfg)
+    torch.manual_seed(0)
+    beams = tc.env.lidar.num_beams
+    ac = make_actor_critic(tc.model, 26, beams)
+    run = tmp_path_factory.mktemp("run")
+    save_training_state(
+        run / "checkpoints" / "last.pt",
+        model=ac.model,
+        ppo=PPO(ac, tc.ppo),
+        curriculum=Curriculum(tc.curriculum),
+        counters={"iteration": 3, "frames": 300, "wall_time_s": 1.0},
+        config_yaml=yaml.safe_dump(asdict(tc)),
+        num_obs=26,
+        num_beams=beams,
+    )
+    return run, ac, tc
