@@ -26,7 +26,7 @@ from torch import Tensor
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from truckrl.env import TruckEnv
-from truckrl.sim.control import ControlConfig
+from truckrl.sim.control import ControlConfig, commanded
 from truckrl.sim.validation import check_choice, param, validate
 from truckrl.task import MAX_DIFFICULTY, OUTCOMES, shown_float
 from truckrl.viz.draw import COLORS, draw_state
@@ -80,14 +80,13 @@ def commanded_values(state: TensorDictBase, control: ControlConfig, min_speed: f
     max_speed]``) applied to the truck's current speed/accel/jerk and steer/rate/accel.
     """
     p = state["params"]
-    lon = control.longitudinal
-    if lon == "speed":
-        span = float(p["max_speed"]) - min_speed
-        u_lon = 2.0 * (float(state["speed"]) - min_speed) / span - 1.0
-    else:  # accel | jerk: the state key and the limit share the name
-        u_lon = float(state[lon]) / float(p[f"max_{lon}"])
-    key = {"angle": "steer", "rate": "steer_rate", "accel": "steer_accel"}[control.lateral]
-    u_lat = float(state[key]) / float(p[f"max_{key}"])
+    (lon_key, lon_limit), (lat_key, lat_limit) = commanded(control.longitudinal, control.lateral)
+    if lon_key == "speed":
+        span = float(p[lon_limit]) - min_speed
+        u_lon = 2.0 * (float(state[lon_key]) - min_speed) / span - 1.0
+    else:
+        u_lon = float(state[lon_key]) / float(p[lon_limit])
+    u_lat = float(state[lat_key]) / float(p[lat_limit])
     return u_lon, u_lat
 
 

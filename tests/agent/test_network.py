@@ -64,6 +64,17 @@ def test_bad_model_config_names_field():
         ModelConfig(kernel_size=4)
     with pytest.raises(ConfigError, match="model.init_std"):
         ModelConfig(init_std=0.0)
+    with pytest.raises(ConfigError, match=r"model.numeric_hidden\[1\] = 2.5"):
+        ModelConfig(numeric_hidden=(64, 2.5))
+    with pytest.raises(ConfigError, match="model.numeric_hidden"):
+        ModelConfig(numeric_hidden=())
+
+
+def test_model_config_normalises_lists_and_allows_no_cnn():
+    cfg = ModelConfig(numeric_hidden=[32], cnn_channels=[], kernel_size=3.0)
+    assert cfg.numeric_hidden == (32,) and cfg.cnn_channels == () and cfg.kernel_size == 3
+    enc = LidarEncoder(16, cfg)  # no conv layer: the raw ranges feed the fusion layer
+    assert enc.out_features == 16 and enc(torch.rand(3, 16)).shape == (3, 16)
 
 
 def test_policy_and_value_on_worker_by_env_by_time_batch():

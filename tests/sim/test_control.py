@@ -13,11 +13,13 @@ from truckrl.sim.control import (
     CONTROL_KEYS,
     LATERAL_MODES,
     LONGITUDINAL_MODES,
+    MODE_TABLE,
     Control,
     ControlConfig,
+    commanded,
 )
 from truckrl.sim.validation import ConfigError
-from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params
+from truckrl.sim.vehicle import PARAM_KEYS, VehicleConfig, sample_vehicle_params
 
 ROOT = Path(__file__).resolve().parents[2]
 DT = 0.1  # paper: dt = 0.1 s
@@ -229,6 +231,34 @@ def test_zero_state():
     assert set(state) == set(CONTROL_KEYS)
     assert all(v.shape == (3,) and (v == 0).all() for v in state.values())
     assert (Control(ControlConfig(), DT, min_speed=1.0).zero_state(2)["speed"] == 1.0).all()
+
+
+def test_mode_table_is_the_mode_vocabulary():
+    assert LONGITUDINAL_MODES == ("speed", "accel", "jerk")
+    assert LATERAL_MODES == ("angle", "rate", "accel")
+    assert CONTROL_KEYS == ("speed", "accel", "jerk", "steer", "steer_rate", "steer_accel")
+    assert tuple(MODE_TABLE) == ("longitudinal", "lateral")
+    for modes in MODE_TABLE.values():
+        assert all(limit in PARAM_KEYS for _, limit in modes.values())
+    with pytest.raises(TypeError):
+        MODE_TABLE["lateral"]["wheel"] = ("steer", "max_steer")  # read-only
+
+
+@pytest.mark.parametrize(("lon", "lat"), PAIRS)
+def test_commanded_keys_and_limits(lon, lat):
+    (lon_key, lon_limit), (lat_key, lat_limit) = commanded(lon, lat)
+    assert lon_key == CONTROL_KEYS[LONGITUDINAL_MODES.index(lon)]
+    assert lat_key == CONTROL_KEYS[3 + LATERAL_MODES.index(lat)]
+    assert lon_limit == {"speed": "max_speed", "accel": "max_accel", "jerk": "max_jerk"}[lon]
+    assert lat_limit == {"angle": "max_steer", "rate": "max_steer_rate"}.get(lat, "max_steer_accel")
+
+
+def test_commanded_rejects_unknown_modes():
+    assert commanded("accel", "rate") == (("accel", "max_accel"), ("steer_rate", "max_steer_rate"))
+    with pytest.raises(ConfigError, match="control.longitudinal"):
+        commanded("brake", "rate")
+    with pytest.raises(ConfigError, match="control.lateral"):
+        commanded("accel", "jerk")
 
 
 def test_paper_default_is_accel_rate():

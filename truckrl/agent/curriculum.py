@@ -25,46 +25,78 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from truckrl.sim.validation import ConfigError, check_choice, check_range
+from truckrl.sim.validation import ConfigError, param, validate
 
 
 @dataclass(frozen=True)
 class CurriculumConfig:
-    """Curriculum settings (``conf/curriculum/*.yaml``).
+    """Curriculum settings (``conf/curriculum/*.yaml``)."""
 
-    Attributes:
-        mode: "ema" (the paper's promotion rule) or "fixed".
-        start_difficulty: difficulty at the start of training (resumed runs use the checkpoint's).
-        ema_decay: EMA factor per finished episode (paper: 0.995).
-        threshold: promote when the EMA exceeds this (paper: 0.70).
-        step: difficulty increment per promotion (paper: 0.5).
-        ema_init: EMA value at the start and after each promotion.
-        max_difficulty: no promotion beyond this (``None``: unbounded).
-    """
-
-    mode: str = "ema"
-    start_difficulty: float = 0.0
-    ema_decay: float = 0.995  # paper
-    threshold: float = 0.70  # paper
-    step: float = 0.5  # paper
-    ema_init: float = 0.0
-    max_difficulty: float | None = None
+    mode: str = param(
+        "ema", choices=("ema", "fixed"), unit="-", doc="ema (the paper's promotion rule) or fixed"
+    )
+    start_difficulty: float = param(
+        0.0,
+        lo=0.0,
+        hi=30.0,
+        unit="-",
+        doc="difficulty at the start of training (resumed runs use the checkpoint's)",
+    )
+    ema_decay: float = param(
+        0.995,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+        hi_open=True,
+        unit="-",
+        doc="EMA factor per finished episode",
+        source="paper",
+    )
+    threshold: float = param(
+        0.70,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+        hi_open=True,
+        unit="-",
+        doc="promote when the EMA of success exceeds this",
+        source="paper",
+    )
+    step: float = param(
+        0.5,
+        lo=0.0,
+        lo_open=True,
+        hi=30.0,
+        unit="-",
+        doc="difficulty increment per promotion",
+        source="paper",
+    )
+    ema_init: float = param(
+        0.0,
+        lo=0.0,
+        hi=1.0,
+        unit="-",
+        doc="EMA value at the start and after each promotion; <= threshold",
+    )
+    max_difficulty: float | None = param(
+        None,
+        lo=0.0,
+        hi=30.0,
+        unit="-",
+        doc="no promotion beyond this (null: unbounded); >= start_difficulty",
+    )
 
     def __post_init__(self) -> None:
-        check_choice("curriculum.mode", self.mode, ("ema", "fixed"))
-        check_range("curriculum.start_difficulty", self.start_difficulty, 0.0, 30.0)
-        check_range("curriculum.ema_decay", self.ema_decay, 0.0, 1.0, lo_open=True, hi_open=True)
-        check_range("curriculum.threshold", self.threshold, 0.0, 1.0, lo_open=True, hi_open=True)
-        check_range("curriculum.step", self.step, 0.0, 30.0, lo_open=True)
-        check_range("curriculum.ema_init", self.ema_init, 0.0, 1.0)
+        validate(self, "curriculum")
         if self.ema_init > self.threshold:
             raise ConfigError(
                 f"curriculum.ema_init = {self.ema_init} must not exceed "
                 f"curriculum.threshold = {self.threshold} (it would promote at every episode)"
             )
-        if self.max_difficulty is not None:
-            check_range(
-                "curriculum.max_difficulty", self.max_difficulty, self.start_difficulty, 30.0
+        if self.max_difficulty is not None and self.max_difficulty < self.start_difficulty:
+            raise ConfigError(
+                f"curriculum.max_difficulty = {self.max_difficulty} must be at least "
+                f"curriculum.start_difficulty = {self.start_difficulty}"
             )
 
 

@@ -32,7 +32,7 @@ from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictModule
 from torch import Tensor, nn
 from torchrl.modules import ActorValueOperator, IndependentNormal, ProbabilisticActor, ValueOperator
 
-from truckrl.sim.validation import ConfigError, check_range
+from truckrl.sim.validation import ConfigError, param, validate
 
 OBS_KEY = "observation"
 LIDAR_KEY = "lidar"
@@ -41,41 +41,50 @@ HIDDEN_KEY = "hidden"
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """Sizes of the two-branch network (``conf/model/two_branch.yaml``).
+    """Sizes of the two-branch network (``conf/model/two_branch.yaml``)."""
 
-    Attributes:
-        numeric_hidden: widths of the numeric MLP layers (paper: 128 then 64).
-        cnn_channels: output channels of each LiDAR conv layer (paper: 2 then 4).
-        kernel_size: conv kernel size in beams (paper: 5); odd, so circular padding is symmetric.
-        stride: conv stride (paper: 2).
-        fusion_dim: width of the fused trunk output "hidden" (paper: 64).
-        init_std: initial standard deviation of the Gaussian policy in action units (paper: 0.5).
-        actor_init_gain: scale of the initial actor-mean weights; small so that the first actions
-            are set by the exploration noise rather than by random weights.
-    """
-
-    numeric_hidden: tuple[int, ...] = (128, 64)  # paper
-    cnn_channels: tuple[int, ...] = (2, 4)  # paper
-    kernel_size: int = 5  # paper
-    stride: int = 2  # paper
-    fusion_dim: int = 64  # paper
-    init_std: float = 0.5  # paper
-    actor_init_gain: float = 0.01
+    numeric_hidden: tuple[int, ...] = param(
+        (128, 64), lo=1, hi=1e6, unit="-", doc="widths of the numeric MLP layers", source="paper"
+    )
+    cnn_channels: tuple[int, ...] = param(
+        (2, 4),
+        lo=1,
+        hi=1e4,
+        min_len=0,
+        unit="-",
+        doc="output channels of each LiDAR conv layer (none: raw ranges)",
+        source="paper",
+    )
+    kernel_size: int = param(
+        5,
+        lo=1,
+        hi=101,
+        unit="beams",
+        doc="conv kernel size; odd, so circular padding is symmetric",
+        source="paper",
+    )
+    stride: int = param(2, lo=1, hi=16, unit="beams", doc="conv stride", source="paper")
+    fusion_dim: int = param(
+        64, lo=1, hi=1e6, unit="-", doc='width of the fused trunk output "hidden"', source="paper"
+    )
+    init_std: float = param(
+        0.5,
+        lo=0.0,
+        lo_open=True,
+        hi=100.0,
+        unit="action units",
+        doc="initial std of the Gaussian policy",
+        source="paper",
+    )
+    # small, so that the first actions are set by the exploration noise, not by random weights
+    actor_init_gain: float = param(
+        0.01, lo=0.0, lo_open=True, hi=10.0, unit="-", doc="scale of the initial actor-mean weights"
+    )
 
     def __post_init__(self) -> None:
-        if len(self.numeric_hidden) == 0:
-            raise ConfigError("model.numeric_hidden must list at least one layer width")
-        for i, w in enumerate(self.numeric_hidden):
-            check_range(f"model.numeric_hidden[{i}]", w, 1, 1e6)
-        for i, c in enumerate(self.cnn_channels):
-            check_range(f"model.cnn_channels[{i}]", c, 1, 1e4)
-        check_range("model.kernel_size", self.kernel_size, 1, 101)
-        if int(self.kernel_size) % 2 != 1:
+        validate(self, "model")
+        if self.kernel_size % 2 != 1:
             raise ConfigError(f"model.kernel_size = {self.kernel_size} must be odd")
-        check_range("model.stride", self.stride, 1, 16)
-        check_range("model.fusion_dim", self.fusion_dim, 1, 1e6)
-        check_range("model.init_std", self.init_std, 0.0, 100.0, lo_open=True)
-        check_range("model.actor_init_gain", self.actor_init_gain, 0.0, 10.0, lo_open=True)
 
 
 def conv_out_len(length: int, kernel_size: int, stride: int) -> int:

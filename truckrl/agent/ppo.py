@@ -18,65 +18,103 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from truckrl.agent.network import HIDDEN_KEY, LIDAR_KEY, OBS_KEY, ActorCritic
-from truckrl.sim.validation import ConfigError, check_choice, check_range
+from truckrl.sim.validation import ConfigError, check_range, param, validate
 
 
 @dataclass(frozen=True)
 class PPOConfig:
     """PPO hyper-parameters (``conf/ppo/*.yaml``; ``paper`` holds the paper's numbers).
 
-    Attributes:
-        lr: initial Adam learning rate (paper: 1e-4).
-        lr_schedule: "adaptive" (RSL-RL KL rule) or "fixed".
-        desired_kl: KL target of the adaptive schedule (paper: 0.01).
-        lr_min, lr_max: clamp of the adaptive learning rate.
-        num_epochs: passes over each batch (paper: 8).
-        num_minibatches: minibatches per epoch (paper: 96); must divide the batch size.
-        gamma: discount (paper: 0.99).
-        lmbda: GAE lambda (paper: 0.95).
-        clip_epsilon: ratio clip (paper: 0.2).
-        entropy_coeff: entropy bonus weight (paper: 0.005).
-        value_coeff: critic loss weight (paper: 0.5).
-        max_grad_norm: gradient-norm clip (paper: 4.0).
-        clip_value: clip the value update to ``clip_epsilon`` around the rollout value (RSL-RL).
-        normalize_advantage: standardise advantages over the whole batch (RSL-RL).
-        loss_critic_type: "l2" (RSL-RL's squared error), "l1" or "smooth_l1".
+    With the adaptive schedule, ``lr`` must lie in ``[lr_min, lr_max]``; ``num_minibatches`` must
+    divide the batch size (:meth:`check_batch`).
     """
 
-    lr: float = 1e-4  # paper
-    lr_schedule: str = "adaptive"  # paper: adaptive KL schedule
-    desired_kl: float = 0.01  # paper
-    lr_min: float = 1e-5
-    lr_max: float = 1e-2
-    num_epochs: int = 8  # paper
-    num_minibatches: int = 96  # paper
-    gamma: float = 0.99  # paper
-    lmbda: float = 0.95  # paper
-    clip_epsilon: float = 0.2  # paper
-    entropy_coeff: float = 0.005  # paper
-    value_coeff: float = 0.5  # paper
-    max_grad_norm: float = 4.0  # paper
-    clip_value: bool = True
-    normalize_advantage: bool = True
-    loss_critic_type: str = "l2"
+    lr: float = param(
+        1e-4,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+        unit="-",
+        doc="initial Adam learning rate",
+        source="paper",
+    )
+    lr_schedule: str = param(
+        "adaptive",
+        choices=("adaptive", "fixed"),
+        unit="-",
+        doc="adaptive (RSL-RL KL rule) or fixed learning rate",
+        source="paper",
+    )
+    desired_kl: float = param(
+        0.01,
+        lo=0.0,
+        lo_open=True,
+        hi=10.0,
+        unit="nats",
+        doc="KL target of the adaptive schedule",
+        source="paper",
+    )
+    lr_min: float = param(
+        1e-5, lo=0.0, lo_open=True, hi=1.0, unit="-", doc="lower clamp of the adaptive lr"
+    )
+    lr_max: float = param(
+        1e-2,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+        unit="-",
+        doc="upper clamp of the adaptive lr; >= lr_min",
+    )
+    num_epochs: int = param(
+        8, lo=1, hi=1000, unit="-", doc="passes over each batch", source="paper"
+    )
+    num_minibatches: int = param(
+        96,
+        lo=1,
+        hi=1e7,
+        unit="-",
+        doc="minibatches per epoch; divides the batch size",
+        source="paper",
+    )
+    gamma: float = param(0.99, lo=0.0, hi=1.0, unit="-", doc="discount", source="paper")
+    lmbda: float = param(0.95, lo=0.0, hi=1.0, unit="-", doc="GAE lambda", source="paper")
+    clip_epsilon: float = param(
+        0.2, lo=0.0, lo_open=True, hi=1.0, unit="-", doc="policy ratio clip", source="paper"
+    )
+    entropy_coeff: float = param(
+        0.005, lo=0.0, hi=10.0, unit="-", doc="entropy bonus weight", source="paper"
+    )
+    value_coeff: float = param(
+        0.5, lo=0.0, hi=100.0, unit="-", doc="critic loss weight", source="paper"
+    )
+    max_grad_norm: float = param(
+        4.0, lo=0.0, lo_open=True, hi=1e6, unit="-", doc="gradient-norm clip", source="paper"
+    )
+    clip_value: bool = param(
+        True,
+        unit="-",
+        doc="clip the value update to clip_epsilon around the rollout value",
+        source="RSL-RL",
+    )
+    normalize_advantage: bool = param(
+        True, unit="-", doc="standardise advantages over the whole batch", source="RSL-RL"
+    )
+    loss_critic_type: str = param(
+        "l2",
+        choices=("l2", "l1", "smooth_l1"),
+        unit="-",
+        doc="critic loss: l2 (squared error), l1 or smooth_l1",
+        source="RSL-RL",
+    )
 
     def __post_init__(self) -> None:
-        check_range("ppo.lr", self.lr, 0.0, 1.0, lo_open=True)
-        check_choice("ppo.lr_schedule", self.lr_schedule, ("adaptive", "fixed"))
-        check_range("ppo.desired_kl", self.desired_kl, 0.0, 10.0, lo_open=True)
-        check_range("ppo.lr_min", self.lr_min, 0.0, 1.0, lo_open=True)
-        check_range("ppo.lr_max", self.lr_max, self.lr_min, 1.0)
+        validate(self, "ppo")
+        if self.lr_max < self.lr_min:
+            raise ConfigError(
+                f"ppo.lr_max = {self.lr_max} must be at least ppo.lr_min = {self.lr_min}"
+            )
         if self.lr_schedule == "adaptive":
             check_range("ppo.lr", self.lr, self.lr_min, self.lr_max)
-        check_range("ppo.num_epochs", self.num_epochs, 1, 1000)
-        check_range("ppo.num_minibatches", self.num_minibatches, 1, 1e7)
-        check_range("ppo.gamma", self.gamma, 0.0, 1.0)
-        check_range("ppo.lmbda", self.lmbda, 0.0, 1.0)
-        check_range("ppo.clip_epsilon", self.clip_epsilon, 0.0, 1.0, lo_open=True)
-        check_range("ppo.entropy_coeff", self.entropy_coeff, 0.0, 10.0)
-        check_range("ppo.value_coeff", self.value_coeff, 0.0, 100.0)
-        check_range("ppo.max_grad_norm", self.max_grad_norm, 0.0, 1e6, lo_open=True)
-        check_choice("ppo.loss_critic_type", self.loss_critic_type, ("l2", "l1", "smooth_l1"))
 
     def check_batch(self, batch_size: int) -> int:
         """Check ``num_minibatches`` divides ``batch_size`` frames; return the minibatch size."""

@@ -21,8 +21,10 @@ from truckrl.sim.control import (
     CONTROL_KEYS,
     LATERAL_MODES,
     LONGITUDINAL_MODES,
+    MODE_TABLE,
     Control,
     ControlConfig,
+    commanded,
 )
 from truckrl.sim.geometry import (
     point_segment_distance,
@@ -56,6 +58,7 @@ __all__ = [
     "CONTROL_KEYS",
     "LATERAL_MODES",
     "LONGITUDINAL_MODES",
+    "MODE_TABLE",
     "PARAM_KEYS",
     "ConfigError",
     "Control",
@@ -66,6 +69,7 @@ __all__ = [
     "SweepLidar",
     "VehicleConfig",
     "beam_angles",
+    "commanded",
     "contour_collides",
     "generate_scenes",
     "jackknifed",

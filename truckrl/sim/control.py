@@ -48,35 +48,84 @@ Non-finite action entries are not sanitized here: NaN propagates into the state.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 
 import torch
 from torch import Tensor
 
-from truckrl.sim.validation import check_choice, check_range, from_mapping
+from truckrl.sim.validation import check_choice, check_range, from_mapping, param, validate
 
-LONGITUDINAL_MODES: tuple[str, ...] = ("speed", "accel", "jerk")
-LATERAL_MODES: tuple[str, ...] = ("angle", "rate", "accel")
+#: The control-mode vocabulary, the one place it is spelled out: per axis, per mode (in chain
+#: order 0, 1, 2), the state key the mode commands and the vehicle parameter that bounds it.
+MODE_TABLE: Mapping[str, Mapping[str, tuple[str, str]]] = MappingProxyType(
+    {
+        "longitudinal": MappingProxyType(
+            {
+                "speed": ("speed", "max_speed"),
+                "accel": ("accel", "max_accel"),
+                "jerk": ("jerk", "max_jerk"),
+            }
+        ),
+        "lateral": MappingProxyType(
+            {
+                "angle": ("steer", "max_steer"),
+                "rate": ("steer_rate", "max_steer_rate"),
+                "accel": ("steer_accel", "max_steer_accel"),
+            }
+        ),
+    }
+)
+
+LONGITUDINAL_MODES: tuple[str, ...] = tuple(MODE_TABLE["longitudinal"])
+LATERAL_MODES: tuple[str, ...] = tuple(MODE_TABLE["lateral"])
 
 #: State keys, in the fixed order used by observations: longitudinal chain then lateral chain.
-CONTROL_KEYS: tuple[str, ...] = ("speed", "accel", "jerk", "steer", "steer_rate", "steer_accel")
+CONTROL_KEYS: tuple[str, ...] = tuple(
+    key for axis in MODE_TABLE.values() for key, _ in axis.values()
+)
 
-_LONG_KEYS = CONTROL_KEYS[:3]
-_LAT_KEYS = CONTROL_KEYS[3:]
-_LONG_LIMITS = ("max_speed", "max_accel", "max_jerk")
-_LAT_LIMITS = ("max_steer", "max_steer_rate", "max_steer_accel")
+_LONG_KEYS = tuple(key for key, _ in MODE_TABLE["longitudinal"].values())
+_LAT_KEYS = tuple(key for key, _ in MODE_TABLE["lateral"].values())
+_LONG_LIMITS = tuple(limit for _, limit in MODE_TABLE["longitudinal"].values())
+_LAT_LIMITS = tuple(limit for _, limit in MODE_TABLE["lateral"].values())
+
+
+def commanded(longitudinal: str, lateral: str) -> tuple[tuple[str, str], tuple[str, str]]:
+    """What a mode pair commands: ``((lon_state_key, lon_limit_key), (lat_state_key,
+    lat_limit_key))``, e.g. ``commanded("accel", "rate") == (("accel", "max_accel"),
+    ("steer_rate", "max_steer_rate"))``.
+
+    Raises:
+        ConfigError: an unknown mode, naming ``control.longitudinal`` / ``control.lateral``.
+    """
+    check_choice("control.longitudinal", longitudinal, LONGITUDINAL_MODES)
+    check_choice("control.lateral", lateral, LATERAL_MODES)
+    return MODE_TABLE["longitudinal"][longitudinal], MODE_TABLE["lateral"][lateral]
 
 
 @dataclass
 class ControlConfig:
     """Which quantity each action component commands (``conf/control/<long>_<lat>.yaml``)."""
 
-    longitudinal: str = "accel"  # paper: acceleration + steering rate
-    lateral: str = "rate"
+    longitudinal: str = param(
+        "accel",
+        choices=LONGITUDINAL_MODES,
+        unit="-",
+        doc="longitudinal command: speed, acceleration or jerk",
+        source="paper",
+    )
+    lateral: str = param(
+        "rate",
+        choices=LATERAL_MODES,
+        unit="-",
+        doc="lateral command: steering angle, rate or acceleration",
+        source="paper",
+    )
 
     def __post_init__(self) -> None:
-        check_choice("control.longitudinal", self.longitudinal, LONGITUDINAL_MODES)
-        check_choice("control.lateral", self.lateral, LATERAL_MODES)
+        validate(self, "control")
 
 
 def _clip(x: Tensor, lo: Tensor, hi: Tensor) -> Tensor:

@@ -36,7 +36,7 @@ from truckrl.sim.geometry import (
     to_local,
     wrap_angle,
 )
-from truckrl.sim.validation import ConfigError, check_choice, check_range
+from truckrl.sim.validation import ConfigError, check_choice, param, validate
 
 #: Implementations of :func:`lidar_scan`.
 METHODS: tuple[str, ...] = ("dense", "span")
@@ -59,31 +59,42 @@ _ON_SEGMENT = 1e-9
 
 @dataclass
 class LidarConfig:
-    """LiDAR layout and range.
+    """LiDAR layout and range (``env.lidar.*``).
 
-    Attributes:
-        num_beams: number of beams ``R``; the paper's 1-D CNN (4 channels after two stride-2
-            layers feeding a 64-wide layer, ~17.3k parameters) implies 16.
-        fov: field of view [rad]; ``2*pi`` is the full circle (paper: beams at -pi and +pi are
-            neighbours, circular padding in the CNN).
-        max_range: range [m] returned when nothing is hit (paper: 50 m).
-        method: batched implementation used by the environment, one of :data:`METHODS`.
-            ``"dense"`` measured fastest at the environment's sizes (R = 16..64, E ~ 40-100,
-            N = 1024..4096 on CPU); see ``python -m truckrl.bench lidar``.
+    ``num_beams``: the paper's 1-D CNN (4 channels after two stride-2 layers feeding a 64-wide
+    layer, ~17.3k parameters) implies 16. ``fov = 2*pi`` is the full circle (paper: beams at -pi
+    and +pi are neighbours, circular padding in the CNN). ``method``: ``"dense"`` measured fastest
+    at the environment's sizes (R = 16..64, E ~ 40-100, N = 1024..4096 on CPU); see
+    ``python -m truckrl.bench lidar``.
     """
 
-    num_beams: int = 16
-    fov: float = 2.0 * math.pi
-    max_range: float = 50.0
-    method: str = "dense"
+    num_beams: int = param(
+        16, lo=1, hi=4096, unit="-", doc="number of beams R", source="paper's CNN size"
+    )
+    fov: float = param(
+        2.0 * math.pi,
+        lo=0.0,
+        lo_open=True,
+        hi=2.0 * math.pi + 1e-9,
+        unit="rad",
+        doc="field of view; 2*pi = full circle",
+        source="paper",
+    )
+    max_range: float = param(
+        50.0,
+        lo=0.0,
+        lo_open=True,
+        hi=1000.0,
+        unit="m",
+        doc="range returned when nothing is hit",
+        source="paper",
+    )
+    method: str = param(
+        "dense", choices=METHODS, unit="-", doc="batched implementation of lidar_scan"
+    )
 
     def __post_init__(self) -> None:
-        if isinstance(self.num_beams, bool) or int(self.num_beams) != self.num_beams:
-            raise ConfigError(f"lidar.num_beams must be an integer, got {self.num_beams!r}")
-        self.num_beams = int(check_range("lidar.num_beams", self.num_beams, 1, 4096))
-        self.fov = check_range("lidar.fov", self.fov, 0.0, 2.0 * math.pi + 1e-9, lo_open=True)
-        self.max_range = check_range("lidar.max_range", self.max_range, 0.0, 1000.0, lo_open=True)
-        self.method = check_choice("lidar.method", self.method, METHODS)
+        validate(self, "env.lidar")
 
     def angles(self, dtype: torch.dtype = torch.float32, device=None) -> Tensor:
         """This layout's :func:`beam_angles` ``[R]`` [rad]."""

@@ -73,7 +73,7 @@ import torch
 from torch import Tensor
 
 from truckrl.sim.geometry import rectangle_segments, wrap_angle
-from truckrl.sim.validation import ConfigError, check_interval, check_range
+from truckrl.sim.validation import ConfigError, param, validate
 
 #: Curb segment slots per scene: 2 roads x 2 curbs x 2 pieces (a straight road uses the first 2).
 CURB_SLOTS = 8
@@ -83,138 +83,191 @@ KIND_CURB, KIND_OBSTACLE = 0, 1
 
 @dataclass
 class SceneConfig:
-    """Scene generator parameters. Units: metres, radians. See the module doc for the rules.
+    """Scene generator parameters (``env.scene.*``). See the module doc for the rules.
 
     The paper (Sec. "Scenes and unified geometry") randomizes road widths, headings, centres,
     crossing angles, start/goal and obstacles without stating ranges; the defaults fit an
-    articulated truck (widths that let it turn, 25-70 m tasks, 50 m LiDAR range).
+    articulated truck (widths that let it turn, 25-70 m tasks, 50 m LiDAR range). Bounds that
+    depend on other fields are checked in ``__post_init__`` and named in each field's doc.
     """
 
-    crossing_prob: float = 0.7
-    road_width: tuple[float, float] = (10.0, 18.0)
-    crossing_angle: tuple[float, float] = (math.pi / 4, 3 * math.pi / 4)
-    center_jitter: float = 10.0
-    half_extent: float = 100.0
-    curb_reach: float = 50.0
-    goal_distance: tuple[float, float] = (25.0, 70.0)
-    shoulder_gap: tuple[float, float] = (0.5, 1.5)
-    pose_intersection_margin: float = 2.0
-    pose_zone_length: float = 20.0
-    max_obstacles: int = 16
-    obstacle_spacing: float = 12.0
-    obstacle_keep_prob: float = 0.5
-    obstacle_length: tuple[float, float] = (3.5, 9.0)
-    obstacle_width: tuple[float, float] = (1.5, 2.2)
-    obstacle_curb_offset: tuple[float, float] = (0.2, 0.6)
-    obstacle_min_gap: float = 1.0
-    obstacle_pose_clearance: float = 2.0
-    obstacle_intersection_clearance: float = 6.0
-    min_free_corridor: float = 4.0
-    rounds: int = 8
+    crossing_prob: float = param(
+        0.7, lo=0.0, hi=1.0, unit="-", doc="probability of two crossing roads (else one road)"
+    )
+    road_width: tuple[float, float] = param(
+        (10.0, 18.0), lo=0.0, lo_open=True, hi=200.0, unit="m", doc="road width, curb to curb"
+    )
+    crossing_angle: tuple[float, float] = param(
+        (math.pi / 4, 3 * math.pi / 4),
+        lo=0.05,
+        hi=math.pi - 0.05,
+        unit="rad",
+        doc="angle between the two roads (never near-parallel)",
+    )
+    center_jitter: float = param(
+        10.0,
+        lo=0.0,
+        hi=1e4,
+        unit="m",
+        doc="the scene centre is uniform in +-this square around the origin",
+    )
+    half_extent: float = param(
+        100.0,
+        lo=0.0,
+        lo_open=True,
+        hi=1e4,
+        unit="m",
+        doc="roads (curbs) span +-this along their direction from the scene centre",
+    )
+    curb_reach: float = param(
+        50.0,
+        lo=0.0,
+        hi=1e4,
+        hi_open=True,
+        unit="m",
+        doc="curbs reach this far beyond every start/goal rear axle; < half_extent",
+        source="paper LiDAR range",
+    )
+    goal_distance: tuple[float, float] = param(
+        (25.0, 70.0),
+        lo=0.0,
+        lo_open=True,
+        unit="m",
+        doc="start-goal straight-line distance; <= 2 * (half_extent - curb_reach)",
+    )
+    shoulder_gap: tuple[float, float] = param(
+        (0.5, 1.5),
+        lo=0.0,
+        unit="m",
+        doc="curb to the curb-side edge of the truck at start and goal; <= road_width min / 2",
+    )
+    pose_intersection_margin: float = param(
+        2.0,
+        lo=0.0,
+        hi=100.0,
+        unit="m",
+        doc="start/goal footprints stay this far beyond the intersection",
+    )
+    pose_zone_length: float = param(
+        20.0,
+        lo=0.0,
+        hi=1e4,
+        unit="m",
+        doc="obstacle-free lane ahead of the start's front / behind the goal's rear",
+    )
+    max_obstacles: int = param(
+        16, lo=0, hi=4096, unit="-", doc="obstacle slots per scene (4 segments each)"
+    )
+    obstacle_spacing: float = param(
+        12.0,
+        lo=0.0,
+        lo_open=True,
+        hi=1e4,
+        unit="m",
+        doc="slot length along a curb; >= obstacle_length max + obstacle_min_gap",
+    )
+    obstacle_keep_prob: float = param(
+        0.5, lo=0.0, hi=1.0, unit="-", doc="probability that a slot holds an obstacle"
+    )
+    obstacle_length: tuple[float, float] = param(
+        (3.5, 9.0), lo=0.0, lo_open=True, hi=100.0, unit="m", doc="obstacle length along the curb"
+    )
+    obstacle_width: tuple[float, float] = param(
+        (1.5, 2.2), lo=0.0, lo_open=True, hi=100.0, unit="m", doc="obstacle width across the curb"
+    )
+    obstacle_curb_offset: tuple[float, float] = param(
+        (0.2, 0.6),
+        lo=0.0,
+        lo_open=True,
+        hi=100.0,
+        unit="m",
+        doc="gap between curb and obstacle (> 0: obstacles never touch a curb)",
+    )
+    obstacle_min_gap: float = param(
+        1.0, lo=0.0, lo_open=True, hi=100.0, unit="m", doc="minimum distance between obstacles"
+    )
+    obstacle_pose_clearance: float = param(
+        2.0,
+        lo=0.0,
+        hi=100.0,
+        unit="m",
+        doc="minimum distance from obstacles to the start and goal footprints",
+    )
+    obstacle_intersection_clearance: float = param(
+        6.0,
+        lo=0.0,
+        hi=100.0,
+        unit="m",
+        doc="minimum distance from obstacles to the intersection; >= max(obstacle_pose_clearance,"
+        " obstacle_min_gap) / sin(crossing_angle)",
+    )
+    min_free_corridor: float = param(
+        4.0,
+        lo=0.0,
+        unit="m",
+        doc="obstacle-free central band of every road; >= max(2 * obstacle_pose_clearance, "
+        "obstacle_min_gap), <= road_width min - 2 * (obstacle_curb_offset max + "
+        "obstacle_width max)",
+    )
+    rounds: int = param(
+        8, lo=1, hi=1000, unit="-", doc="rejection-sampling rounds before the fallback"
+    )
 
     def __post_init__(self) -> None:
-        self.crossing_prob = check_range("scene.crossing_prob", self.crossing_prob, 0.0, 1.0)
-        self.road_width = _positive_interval("scene.road_width", self.road_width, 200.0)
-        self.crossing_angle = check_interval(
-            "scene.crossing_angle", self.crossing_angle, 0.0, math.pi
-        )
-        if self.crossing_angle[0] < 0.05 or self.crossing_angle[1] > math.pi - 0.05:
+        validate(self, "env.scene")
+        # Bounds that depend on other fields (see each field's doc).
+        if self.curb_reach >= self.half_extent:
             raise ConfigError(
-                f"scene.crossing_angle = {list(self.crossing_angle)}: values must be in "
-                f"[0.05, {math.pi - 0.05:.4f}] rad (roads may not be near-parallel)"
+                f"env.scene.curb_reach = {self.curb_reach} must be below "
+                f"env.scene.half_extent = {self.half_extent}"
             )
-        self.center_jitter = check_range("scene.center_jitter", self.center_jitter, 0.0, 1e4)
-        self.half_extent = check_range(
-            "scene.half_extent", self.half_extent, 0.0, 1e4, lo_open=True
-        )
-        self.curb_reach = check_range(
-            "scene.curb_reach", self.curb_reach, 0.0, self.half_extent, hi_open=True
-        )
-        reach = self.half_extent - self.curb_reach
-        self.goal_distance = _positive_interval(
-            "scene.goal_distance", self.goal_distance, 2 * reach
-        )
-        self.shoulder_gap = check_interval(
-            "scene.shoulder_gap", self.shoulder_gap, 0.0, 0.5 * self.road_width[0]
-        )
-        self.pose_intersection_margin = check_range(
-            "scene.pose_intersection_margin", self.pose_intersection_margin, 0.0, 100.0
-        )
-        self.pose_zone_length = check_range(
-            "scene.pose_zone_length", self.pose_zone_length, 0.0, 1e4
-        )
-        self.max_obstacles = _int_range("scene.max_obstacles", self.max_obstacles, 0, 4096)
-        self.obstacle_keep_prob = check_range(
-            "scene.obstacle_keep_prob", self.obstacle_keep_prob, 0.0, 1.0
-        )
-        self.obstacle_length = _positive_interval(
-            "scene.obstacle_length", self.obstacle_length, 100.0
-        )
-        self.obstacle_width = _positive_interval("scene.obstacle_width", self.obstacle_width, 100.0)
-        self.obstacle_curb_offset = _positive_interval(
-            "scene.obstacle_curb_offset", self.obstacle_curb_offset, 100.0
-        )
-        self.obstacle_min_gap = check_range(
-            "scene.obstacle_min_gap", self.obstacle_min_gap, 0.0, 100.0, lo_open=True
-        )
-        self.obstacle_spacing = check_range(
-            "scene.obstacle_spacing",
-            self.obstacle_spacing,
-            self.obstacle_length[1] + self.obstacle_min_gap,
-            1e4,
-        )
-        self.obstacle_pose_clearance = check_range(
-            "scene.obstacle_pose_clearance", self.obstacle_pose_clearance, 0.0, 100.0
-        )
-        self.obstacle_intersection_clearance = check_range(
-            "scene.obstacle_intersection_clearance",
-            self.obstacle_intersection_clearance,
-            0.0,
-            100.0,
-        )
+        reach = 2.0 * (self.half_extent - self.curb_reach)
+        if self.goal_distance[1] > reach:
+            raise ConfigError(
+                f"env.scene.goal_distance = {list(self.goal_distance)}: values must be in "
+                f"(0, {reach}] (2 * (half_extent - curb_reach))"
+            )
+        half_road = 0.5 * self.road_width[0]
+        if self.shoulder_gap[1] > half_road:
+            raise ConfigError(
+                f"env.scene.shoulder_gap = {list(self.shoulder_gap)}: values must be in "
+                f"[0, {half_road}] (road_width min / 2)"
+            )
+        need = self.obstacle_length[1] + self.obstacle_min_gap
+        if self.obstacle_spacing < need:
+            raise ConfigError(
+                f"env.scene.obstacle_spacing = {self.obstacle_spacing} must be at least "
+                f"obstacle_length max + obstacle_min_gap = {need}"
+            )
         strip = self.obstacle_curb_offset[1] + self.obstacle_width[1]
-        self.min_free_corridor = check_range(
-            "scene.min_free_corridor",
-            self.min_free_corridor,
-            0.0,
-            self.road_width[0] - 2.0 * strip,
-        )
+        room = self.road_width[0] - 2.0 * strip
+        if self.min_free_corridor > room:
+            raise ConfigError(
+                f"env.scene.min_free_corridor = {self.min_free_corridor} must be at most "
+                f"road_width min - 2 * (obstacle_curb_offset max + obstacle_width max) = {room}"
+            )
         # Guarantees behind the obstacle rules (see module doc): the free corridor keeps
         # opposite-curb obstacles clear of a pose and of each other, and the intersection
         # clearance keeps obstacles of one road clear of everything on the other road.
         need = max(2.0 * self.obstacle_pose_clearance, self.obstacle_min_gap)
         if self.min_free_corridor < need:
             raise ConfigError(
-                f"scene.min_free_corridor = {self.min_free_corridor} must be at least "
-                f"max(2 * scene.obstacle_pose_clearance, scene.obstacle_min_gap) = {need}"
+                f"env.scene.min_free_corridor = {self.min_free_corridor} must be at least "
+                f"max(2 * env.scene.obstacle_pose_clearance, env.scene.obstacle_min_gap) = {need}"
             )
         sin_min = min(math.sin(a) for a in self.crossing_angle)
         need = max(self.obstacle_pose_clearance, self.obstacle_min_gap) / sin_min
         if self.obstacle_intersection_clearance < need:
             raise ConfigError(
-                f"scene.obstacle_intersection_clearance = {self.obstacle_intersection_clearance} "
-                f"must be at least max(obstacle_pose_clearance, obstacle_min_gap) / "
-                f"sin(crossing angle) = {need:.3f}"
+                f"env.scene.obstacle_intersection_clearance = "
+                f"{self.obstacle_intersection_clearance} must be at least "
+                f"max(obstacle_pose_clearance, obstacle_min_gap) / sin(crossing angle) = {need:.3f}"
             )
-        self.rounds = _int_range("scene.rounds", self.rounds, 1, 1000)
 
     @property
     def num_segments(self) -> int:
         """``E``: curb slots plus 4 edges per obstacle slot."""
         return CURB_SLOTS + 4 * self.max_obstacles
-
-
-def _positive_interval(name: str, value, hi: float) -> tuple[float, float]:
-    lo_v, hi_v = check_interval(name, value, 0.0, hi)
-    if lo_v <= 0.0:
-        raise ConfigError(f"{name} = {[lo_v, hi_v]}: values must be in (0, {hi}]")
-    return lo_v, hi_v
-
-
-def _int_range(name: str, value, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | float) or int(value) != value:
-        raise ConfigError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}")
-    return int(check_range(name, value, lo, hi))
 
 
 @dataclass

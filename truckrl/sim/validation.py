@@ -107,6 +107,7 @@ class Spec:
         lo, hi: allowed range of a number, of each end of a ``[min, max]`` pair, or of each
             element of a tuple; ``lo_open`` / ``hi_open`` make the bound strict.
         choices: allowed strings.
+        min_len: fewest elements a variable-length tuple (``tuple[int, ...]``) may hold.
         unit: unit of the value (``"m"``, ``"rad/s"``, ``"-"``...).
         doc: one line saying what the field is.
         source: where the default comes from (``"paper"``, or a short reason).
@@ -120,12 +121,14 @@ class Spec:
     unit: str = ""
     doc: str = ""
     source: str = ""
+    min_len: int = 1
 
     def range_text(self) -> str:
         if self.choices is not None:
             return " | ".join(self.choices)
-        left = "(" if self.lo_open else "["
-        right = ")" if self.hi_open else "]"
+        # infinite ends are never reached (values must be finite): shown open
+        left = "(" if self.lo_open or math.isinf(self.lo) else "["
+        right = ")" if self.hi_open or math.isinf(self.hi) else "]"
         return f"{left}{_num(self.lo)}, {_num(self.hi)}{right}"
 
 
@@ -144,6 +147,7 @@ def param(
     unit: str = "",
     doc: str = "",
     source: str = "",
+    min_len: int = 1,
 ) -> Any:
     """A dataclass field carrying its :class:`Spec`: the one place a default and its range live.
 
@@ -151,7 +155,9 @@ def param(
 
         num_beams: int = param(16, lo=1, hi=4096, unit="-", doc="LiDAR beams R")
     """
-    spec = Spec(lo, hi, lo_open, hi_open, tuple(choices) if choices else None, unit, doc, source)
+    spec = Spec(
+        lo, hi, lo_open, hi_open, tuple(choices) if choices else None, unit, doc, source, min_len
+    )
     return dataclasses.field(default=default, metadata={"spec": spec})
 
 
@@ -189,7 +195,8 @@ def _check_scalar(name: str, value: Any, typ: Any, spec: Spec) -> Any:
             check_choice(name, value, spec.choices)
         return value
     if typ is int:
-        if not (_is_number(value) and float(value).is_integer()) or isinstance(value, float):
+        # whole-valued floats (16.0, 1e3 from YAML) are accepted and stored as int
+        if not (_is_number(value) and float(value).is_integer()):
             raise ConfigError(f"{name} = {value!r} must be a whole number in {spec.range_text()}")
         check_range(name, value, spec.lo, spec.hi, lo_open=spec.lo_open, hi_open=spec.hi_open)
         return int(value)
@@ -213,8 +220,9 @@ def _check_value(name: str, value: Any, typ: Any, spec: Spec) -> Any:
         if isinstance(value, str) or not isinstance(value, Sequence):
             raise ConfigError(f"{name} = {value!r} must be a list")
         if len(args) == 2 and args[1] is Ellipsis:
-            if len(value) == 0:
-                raise ConfigError(f"{name} must list at least one value")
+            if len(value) < spec.min_len:
+                least = "one value" if spec.min_len == 1 else f"{spec.min_len} values"
+                raise ConfigError(f"{name} = {list(value)!r} must list at least {least}")
             return tuple(
                 _check_scalar(f"{name}[{i}]", v, args[0], spec) for i, v in enumerate(value)
             )
@@ -262,7 +270,7 @@ def validate(obj: Any, where: str = "") -> None:
 def spec_table(cls: type, where: str = "") -> list[tuple[str, str, str, str, str]]:
     """Rows ``(dotted name, default, unit, allowed, meaning)`` of ``cls`` and nested configs.
 
-    The docs print this table (``python -m truckrl.config``) instead of copying the defaults.
+    The docs print this table (``python -m truckrl.configs``) instead of copying the defaults.
     """
     rows = []
     for f in dataclasses.fields(cls):
@@ -274,7 +282,7 @@ def spec_table(cls: type, where: str = "") -> list[tuple[str, str, str, str, str
         spec = f.metadata.get("spec") or Spec()
         shown = list(default) if isinstance(default, tuple) else default
         doc = spec.doc + (f" ({spec.source})" if spec.source else "")
-        rows.append((name, str(shown), spec.unit, spec.range_text(), doc))
+        rows.append((name, str(shown), spec.unit, _allowed_text(_hints(cls)[f.name], spec), doc))
     return rows
 
 
@@ -308,3 +316,14 @@ def build(cls: type[T], data: Any = None, where: str = "") -> T:
         return cls(**kwargs)
     except TypeError as e:  # a required field is missing
         raise ConfigError(f"{where or cls.__name__}: {e}") from None
+
+
+def _allowed_text(typ: Any, spec: Spec) -> str:
+    """The "allowed" column of :func:`spec_table` for a field of type ``typ``."""
+    args = typing.get_args(typ)
+    if typing.get_origin(typ) in (typing.Union, types.UnionType) and type(None) in args:
+        (inner,) = [a for a in args if a is not type(None)]
+        return f"{_allowed_text(inner, spec)} or null"
+    if typ is bool:
+        return "true | false"
+    return spec.range_text()

@@ -11,31 +11,12 @@ Conventions (see the paper's Fig. 1):
 * The cab is the front part of the tractor; its back wall sits ``cab_gap`` metres ahead of the
   trailer's front face at ``phi = 0``. Jack-knife = trailer body touching the cab.
 
-Randomized parameters (uniform in ``[min, max]`` per episode; defaults in ``conf/env/vehicle/default.yaml``):
-
-======================  ======  ==============  =============================================
-key                     unit    default range   meaning
-======================  ======  ==============  =============================================
-wheelbase               m       3.4 - 4.2       ``L_t``, front axle to rear axle
-front_overhang          m       1.2 - 1.6       front axle to front bumper
-rear_overhang           m       0.6 - 1.2       rear axle to tractor rear end
-tractor_width           m       2.3 - 2.55      tractor body width
-kingpin_offset          m       -0.5 - 0.3      ``a_tk``, rear axle to kingpin (+ = behind)
-cab_gap                 m       0.7 - 1.2       trailer front face to cab back wall at phi = 0
-trailer_wheelbase       m       6.0 - 11.0      ``L_ka``, kingpin to trailer axle
-trailer_front_overhang  m       0.9 - 1.6       kingpin to trailer front face
-trailer_rear_overhang   m       1.0 - 3.5       trailer axle to trailer rear end
-trailer_width           m       2.4 - 2.6       trailer body width
-max_steer               rad     0.55 - 0.70     steering angle limit ``|delta|``
-max_articulation        rad     1.2 - 1.4       articulation safety bound ``phi_max``
-max_speed               m/s     6.0 - 10.0      forward speed limit
-max_accel               m/s^2   1.5 - 3.0       acceleration limit
-max_jerk                m/s^3   2.0 - 5.0       jerk limit
-max_steer_rate          rad/s   0.4 - 0.8       steering rate limit
-max_steer_accel         rad/s^2 1.0 - 3.0       steering acceleration limit
-======================  ======  ==============  =============================================
-
-``min_speed`` [m/s] (default 0: forward driving only, as in the paper) is fixed, not randomized.
+Randomized parameters: every key of :data:`PARAM_KEYS` is drawn uniformly from its ``[min, max]``
+per episode. Lengths are in metres, angles in radians, and the ``max_*`` limits bound speed [m/s],
+acceleration [m/s^2], jerk [m/s^3], steering rate [rad/s] and steering acceleration [rad/s^2]
+(all but speed symmetric in sign). ``min_speed`` [m/s] is fixed, not randomized. The defaults,
+allowed ranges, units and meanings live in the fields of :class:`VehicleConfig` only; ``python -m
+truckrl.configs`` prints them as a table.
 
 Kinematics (:func:`kinematics_step`): kinematic bicycle for the tractor plus a trailer on a hitch,
 
@@ -61,7 +42,7 @@ from truckrl.sim.geometry import (
     segment_box_overlap,
     wrap_angle,
 )
-from truckrl.sim.validation import ConfigError, check_interval, check_range
+from truckrl.sim.validation import ConfigError, check_range, param, validate
 
 #: Randomized parameter keys, in the fixed order used by observations and docs.
 PARAM_KEYS: tuple[str, ...] = (
@@ -85,68 +66,86 @@ PARAM_KEYS: tuple[str, ...] = (
 )
 
 
+def _range(default: tuple[float, float], hi: float, unit: str, doc: str) -> tuple[float, float]:
+    """A randomized ``[min, max]`` pair whose values must lie in ``(0, hi]``."""
+    return param(default, lo=0.0, lo_open=True, hi=hi, unit=unit, doc=doc)
+
+
 @dataclass
 class VehicleConfig:
-    """Ranges ``(min, max)`` of the per-episode randomized truck parameters. Units: see module doc.
+    """Ranges ``(min, max)`` of the per-episode randomized truck parameters (``env.vehicle.*``).
 
     Typical articulated-truck dimensions (EU semi-trailer class); the paper randomizes nearly all
     geometry per episode (Sec. "Kinematics of a tractor-trailer") without stating ranges.
     """
 
-    wheelbase: tuple[float, float] = (3.4, 4.2)
-    front_overhang: tuple[float, float] = (1.2, 1.6)
-    rear_overhang: tuple[float, float] = (0.6, 1.2)
-    tractor_width: tuple[float, float] = (2.3, 2.55)
-    kingpin_offset: tuple[float, float] = (-0.5, 0.3)
+    wheelbase: tuple[float, float] = _range((3.4, 4.2), 20.0, "m", "L_t, front axle to rear axle")
+    front_overhang: tuple[float, float] = _range((1.2, 1.6), 5.0, "m", "front axle to front bumper")
+    rear_overhang: tuple[float, float] = _range(
+        (0.6, 1.2), 5.0, "m", "rear axle to tractor rear end"
+    )
+    tractor_width: tuple[float, float] = _range((2.3, 2.55), 5.0, "m", "tractor body width")
+    kingpin_offset: tuple[float, float] = param(
+        (-0.5, 0.3),
+        lo=-3.0,
+        hi=3.0,
+        unit="m",
+        doc="a_tk, rear axle to kingpin, positive = behind the axle; max < rear_overhang min",
+    )
     # >= 0.7 m so the widest, shortest-overhang trailer corner (sqrt(0.9^2 + 1.3^2) - 0.9 = 0.68 m
     # swing) clears the cab up to 90 deg: jack-knife contact then only happens near phi_max.
-    cab_gap: tuple[float, float] = (0.7, 1.2)
-    trailer_wheelbase: tuple[float, float] = (6.0, 11.0)
-    trailer_front_overhang: tuple[float, float] = (0.9, 1.6)
-    trailer_rear_overhang: tuple[float, float] = (1.0, 3.5)
-    trailer_width: tuple[float, float] = (2.4, 2.6)
-    max_steer: tuple[float, float] = (0.55, 0.70)
-    max_articulation: tuple[float, float] = (1.2, 1.4)
-    max_speed: tuple[float, float] = (6.0, 10.0)
-    max_accel: tuple[float, float] = (1.5, 3.0)
-    max_jerk: tuple[float, float] = (2.0, 5.0)
-    max_steer_rate: tuple[float, float] = (0.4, 0.8)
-    max_steer_accel: tuple[float, float] = (1.0, 3.0)
-    min_speed: float = 0.0
+    cab_gap: tuple[float, float] = _range(
+        (0.7, 1.2), 5.0, "m", "trailer front face to cab back wall at zero articulation"
+    )
+    trailer_wheelbase: tuple[float, float] = _range(
+        (6.0, 11.0), 30.0, "m", "L_ka, kingpin to trailer axle"
+    )
+    trailer_front_overhang: tuple[float, float] = _range(
+        (0.9, 1.6), 5.0, "m", "kingpin to trailer front face"
+    )
+    trailer_rear_overhang: tuple[float, float] = _range(
+        (1.0, 3.5), 10.0, "m", "trailer axle to trailer rear end"
+    )
+    trailer_width: tuple[float, float] = _range((2.4, 2.6), 5.0, "m", "trailer body width")
+    max_steer: tuple[float, float] = _range(
+        (0.55, 0.70), 1.5, "rad", "steering angle limit |delta|"
+    )
+    max_articulation: tuple[float, float] = _range(
+        (1.2, 1.4), 3.1, "rad", "articulation stop phi_max (reaching it = jack-knife)"
+    )
+    max_speed: tuple[float, float] = _range((6.0, 10.0), 50.0, "m/s", "forward speed limit")
+    max_accel: tuple[float, float] = _range(
+        (1.5, 3.0), 20.0, "m/s^2", "acceleration limit (both signs)"
+    )
+    max_jerk: tuple[float, float] = _range((2.0, 5.0), 100.0, "m/s^3", "jerk limit (both signs)")
+    max_steer_rate: tuple[float, float] = _range(
+        (0.4, 0.8), 10.0, "rad/s", "steering rate limit (both signs)"
+    )
+    max_steer_accel: tuple[float, float] = _range(
+        (1.0, 3.0), 100.0, "rad/s^2", "steering acceleration limit (both signs)"
+    )
+    min_speed: float = param(
+        0.0,
+        lo=-50.0,
+        hi=50.0,
+        unit="m/s",
+        doc="fixed lower speed bound, at most max_speed min; 0 = forward driving only",
+        source="paper",
+    )
 
     def __post_init__(self) -> None:
-        positive = {
-            "wheelbase": 20.0,
-            "front_overhang": 5.0,
-            "rear_overhang": 5.0,
-            "tractor_width": 5.0,
-            "cab_gap": 5.0,
-            "trailer_wheelbase": 30.0,
-            "trailer_front_overhang": 5.0,
-            "trailer_rear_overhang": 10.0,
-            "trailer_width": 5.0,
-            "max_steer": 1.5,
-            "max_articulation": 3.1,
-            "max_speed": 50.0,
-            "max_accel": 20.0,
-            "max_jerk": 100.0,
-            "max_steer_rate": 10.0,
-            "max_steer_accel": 100.0,
-        }
-        for name, hi in positive.items():
-            lo_v, hi_v = check_interval(f"vehicle.{name}", getattr(self, name), 0.0, hi)
-            if lo_v <= 0.0:
-                raise ConfigError(f"vehicle.{name} = {[lo_v, hi_v]}: values must be in (0, {hi}]")
-            setattr(self, name, (lo_v, hi_v))
-        self.kingpin_offset = check_interval(
-            "vehicle.kingpin_offset", self.kingpin_offset, -3.0, 3.0
-        )
+        validate(self, "env.vehicle")
         if self.kingpin_offset[1] >= self.rear_overhang[0]:
             raise ConfigError(
-                f"vehicle.kingpin_offset max ({self.kingpin_offset[1]}) must be below "
-                f"vehicle.rear_overhang min ({self.rear_overhang[0]}): the kingpin sits on the tractor"
+                f"env.vehicle.kingpin_offset max ({self.kingpin_offset[1]}) must be below "
+                f"env.vehicle.rear_overhang min ({self.rear_overhang[0]}): the kingpin sits on "
+                "the tractor"
             )
-        self.min_speed = check_range("vehicle.min_speed", self.min_speed, -50.0, self.max_speed[0])
+        if self.min_speed > self.max_speed[0]:
+            raise ConfigError(
+                f"env.vehicle.min_speed = {self.min_speed} must not exceed "
+                f"env.vehicle.max_speed min ({self.max_speed[0]})"
+            )
 
     def bounds(self) -> dict[str, tuple[float, float]]:
         """``{key: (min, max)}`` for every randomized key in :data:`PARAM_KEYS`."""

@@ -32,7 +32,7 @@ from tensordict import TensorDict
 from torch import Tensor
 
 from truckrl.sim.collision import truck_collides
-from truckrl.sim.control import CONTROL_KEYS, Control
+from truckrl.sim.control import CONTROL_KEYS, Control, commanded
 from truckrl.sim.geometry import rotate, to_local
 from truckrl.sim.lidar import beam_angles, lidar_scan
 from truckrl.sim.vehicle import PARAM_KEYS, jackknifed, kinematics_step, normalized_params
@@ -55,10 +55,6 @@ OBSERVED_PARAMS = (
     "max_steer",
     "max_speed",
 )
-_LON_LIMIT = {"speed": "max_speed", "accel": "max_accel", "jerk": "max_jerk"}
-_LAT_LIMIT = {"angle": "max_steer", "rate": "max_steer_rate", "accel": "max_steer_accel"}
-
-
 def sensor_origin(pose: Tensor, params: Any) -> Tensor:
     """LiDAR origin ``[N, 2]`` [m]: the centre of the tractor body.
 
@@ -95,7 +91,7 @@ class Task:
         self.cfg = cfg
         self.control = Control(cfg.control, cfg.dt, min_speed=cfg.vehicle.min_speed)
         self.rel_angles = beam_angles(cfg.lidar.num_beams, cfg.lidar.fov)
-        lon, lat = _LON_LIMIT[cfg.control.longitudinal], _LAT_LIMIT[cfg.control.lateral]
+        (_, lon), (_, lat) = commanded(cfg.control.longitudinal, cfg.control.lateral)
         self.param_index = torch.tensor([PARAM_KEYS.index(k) for k in (*OBSERVED_PARAMS, lon, lat)])
 
     @property

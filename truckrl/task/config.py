@@ -1,7 +1,7 @@
 """Configuration of the task core and of TruckEnv: every default is written here, once.
 
 The fields carry their range, unit and meaning (:func:`truckrl.sim.validation.param`);
-``python -m truckrl.config`` prints them as a table. Hydra composes these dataclasses as
+``python -m truckrl.configs`` prints them as a table. Hydra composes these dataclasses as
 structured configs (``truckrl/entry.py``); YAML files only hold presets.
 """
 

@@ -42,7 +42,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 from truckrl.sim.control import ControlConfig
-from truckrl.sim.validation import ConfigError, check_range, from_mapping
+from truckrl.sim.validation import ConfigError, check_range, from_mapping, param, validate
 
 DRIVE_KEYS: tuple[str, ...] = ("w", "a", "s", "d")
 
@@ -102,19 +102,28 @@ def command_for(key: str) -> Command | None:
 class KeyboardConfig:
     """Set-point speeds of the keyboard mapping (``keyboard.*`` in ``conf/play.yaml``).
 
-    Attributes:
-        setpoint_rate: [action units / s] how fast W/S (speed mode) or A/D (angle mode) move the
-            set-point; 1.0 = from one end of the range to the middle in 1 s.
-        center_rate: [action units / s] angle mode: how fast the wheel returns toward centre
-            while A and D are released.
+    A rate of 1.0 action units / s moves a set-point from one end of the range to the middle in
+    1 s.
     """
 
-    setpoint_rate: float = 1.0
-    center_rate: float = 2.0
+    setpoint_rate: float = param(
+        1.0,
+        lo=0.0,
+        lo_open=True,
+        hi=1e3,
+        unit="action units/s",
+        doc="how fast W/S (speed mode) or A/D (angle mode) move the set-point",
+    )
+    center_rate: float = param(
+        2.0,
+        lo=0.0,
+        hi=1e3,
+        unit="action units/s",
+        doc="angle mode: how fast the wheel returns toward centre while A and D are released",
+    )
 
     def __post_init__(self) -> None:
-        check_range("keyboard.setpoint_rate", self.setpoint_rate, 0.0, 1e3, lo_open=True)
-        check_range("keyboard.center_rate", self.center_rate, 0.0, 1e3)
+        validate(self, "keyboard")
 
 
 def _push(held: frozenset[str], plus: str, minus: str) -> float:
