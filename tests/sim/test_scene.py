@@ -1,6 +1,7 @@
 """Scene generator: every rule of the module doc checked on 10,000 scenes with independent geometry."""
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,17 @@ from truckrl.sim.geometry import (
     segment_segment_distance,
     segments_intersect,
 )
-from truckrl.sim.scene import CURB_SLOTS, SceneBatch, SceneConfig, generate_scenes
+from truckrl.sim.scene import (
+    CURB_SLOTS,
+    ROUTE_LEFT,
+    ROUTE_NAMES,
+    ROUTE_RIGHT,
+    ROUTE_STRAIGHT_ON,
+    ROUTE_STRAIGHT_ROAD,
+    SceneBatch,
+    SceneConfig,
+    generate_scenes,
+)
 from truckrl.sim.validation import ConfigError, from_mapping
 from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params, truck_corners, vehicle_outline
 
@@ -461,3 +472,109 @@ def test_departure_and_approach_lanes_are_free(batch):
         edge = corners[..., 1, :] - corners[..., 0, :]
         same_road = (edge * d[rows, r][:, None]).sum(-1).abs() < 1e-3 * edge.norm(dim=-1)
         assert not (kept & same_road & same_half & overlap).any()
+
+
+# ---------------------------------------------------------------- route descriptors
+
+
+def test_route_fields_shapes_and_dtypes(batch):
+    _, b, _ = batch
+    n = len(b)
+    assert b.route.shape == (n,) and b.route.dtype == torch.int8
+    for name in ("turn_angle", "crossing_angle", "start_road_width", "goal_road_width"):
+        t = getattr(b, name)
+        assert t.shape == (n,) and t.dtype == torch.float32 and torch.isfinite(t).all(), name
+    assert b.goal_distance.shape == (n,) and torch.isfinite(b.goal_distance).all()
+    assert set(b.route.unique().tolist()) <= {0, 1, 2, 3}
+    assert ROUTE_NAMES[ROUTE_STRAIGHT_ROAD] == "straight road"
+    assert ROUTE_NAMES[ROUTE_STRAIGHT_ON] == "straight on"
+    assert (ROUTE_NAMES[ROUTE_LEFT], ROUTE_NAMES[ROUTE_RIGHT]) == ("left", "right")
+
+
+def expected_routes(b: SceneBatch) -> tuple[np.ndarray, np.ndarray]:
+    """Route [N] and signed turn angle [N] (float64, rad) from the start and goal poses only."""
+    start, goal = b.start.double().numpy(), b.goal.double().numpy()
+    u_s = np.stack((np.cos(start[:, 2]), np.sin(start[:, 2])), -1)
+    u_g = np.stack((np.cos(goal[:, 2]), np.sin(goal[:, 2])), -1)
+    cross = u_s[:, 0] * u_g[:, 1] - u_s[:, 1] * u_g[:, 0]
+    dot = (u_s * u_g).sum(-1)
+    turn = np.arctan2(cross, dot)
+    # no crossing on this scene: one road, so start and goal are parallel (and the same way)
+    one_road = ~b.crossing.numpy()
+    route = np.where(cross > 0, ROUTE_LEFT, ROUTE_RIGHT)
+    route = np.where(np.abs(cross) < 1e-6, ROUTE_STRAIGHT_ON, route)
+    route = np.where(one_road, ROUTE_STRAIGHT_ROAD, route)
+    return route, turn
+
+
+def test_route_matches_the_poses(batch):
+    _, b, _ = batch
+    route, turn = expected_routes(b)
+    np.testing.assert_array_equal(b.route.numpy(), route)
+    np.testing.assert_allclose(b.turn_angle.double().numpy(), turn, atol=1e-5)
+    # straight road and straight on: identical headings, so the turn is exactly 0
+    ahead = (b.route == ROUTE_STRAIGHT_ROAD) | (b.route == ROUTE_STRAIGHT_ON)
+    assert torch.equal(b.start[ahead, 2], b.goal[ahead, 2])
+    assert (b.turn_angle[ahead] == 0).all()
+    assert (b.route[~b.crossing] == ROUTE_STRAIGHT_ROAD).all()
+    assert (b.route[b.crossing] != ROUTE_STRAIGHT_ROAD).all()
+    # straight on stays on its road; a turn changes road
+    rs, rg = pose_road(b, b.start), pose_road(b, b.goal)
+    assert ((rs == rg) == ahead).all()
+
+
+def test_turns_have_the_expected_sign_and_side(batch):
+    _, b, _ = batch
+    left, right = b.route == ROUTE_LEFT, b.route == ROUTE_RIGHT
+    assert (b.turn_angle[left] > 0).all() and (b.turn_angle[right] < 0).all()
+    assert (b.turn_angle.abs() < math.pi).all()  # never a U-turn
+    # the goal lies on the side of the start's line of travel that the turn names
+    u_s = torch.stack((torch.cos(b.start[:, 2]), torch.sin(b.start[:, 2])), -1)
+    rel = b.goal[:, :2] - b.start[:, :2]
+    side = u_s[:, 0] * rel[:, 1] - u_s[:, 1] * rel[:, 0]  # > 0: goal left of the start's line
+    assert (side[left] > 0).all() and (side[right] < 0).all()
+
+
+def test_crossing_angle_widths_and_goal_distance(batch):
+    cfg, b, _ = batch
+    x = b.crossing
+    h = b.roads[..., 2].double()
+    between = torch.remainder(h[:, 1] - h[:, 0], 2 * math.pi)  # road 0 -> road 1, CCW
+    np.testing.assert_allclose(b.crossing_angle[x].double(), between[x], atol=1e-5)
+    assert (b.crossing_angle[~x] == 0).all()
+    lo, hi = cfg.crossing_angle
+    assert (b.crossing_angle[x] >= lo - 1e-6).all() and (b.crossing_angle[x] <= hi + 1e-6).all()
+    # a turn is the crossing angle or its supplement
+    turns = (b.route == ROUTE_LEFT) | (b.route == ROUTE_RIGHT)
+    a, t = b.crossing_angle[turns].double(), b.turn_angle[turns].double().abs()
+    assert (torch.minimum((t - a).abs(), (t - (math.pi - a)).abs()) < 1e-5).all()
+    # widths of the roads the poses are aligned with
+    rows = torch.arange(len(b))
+    for width, pose in ((b.start_road_width, b.start), (b.goal_road_width, b.goal)):
+        assert torch.equal(width, b.roads[rows, pose_road(b, pose), 3])
+        assert (width >= cfg.road_width[0]).all() and (width <= cfg.road_width[1]).all()
+    assert torch.equal(b.start_road_width[~x], b.goal_road_width[~x])
+    dist = np.linalg.norm(b.goal[:, :2].double().numpy() - b.start[:, :2].double().numpy(), axis=-1)
+    np.testing.assert_allclose(b.goal_distance.double().numpy(), dist, atol=TOL)
+    lo, hi = cfg.goal_distance
+    assert (b.goal_distance >= lo - TOL).all() and (b.goal_distance <= hi + TOL).all()
+
+
+def test_route_frequencies(default_batch):
+    """All four routes occur, in proportions that fit the generator (measured on 10,000 scenes:
+    31 % straight road, 30 % straight on, 16 % left, 23 % right)."""
+    cfg, b, _ = default_batch
+    frac = torch.bincount(b.route.long(), minlength=4).double() / len(b)
+    straight_road, straight_on, left, right = frac.tolist()
+    assert abs(straight_road + straight_on + left + right - 1.0) < 1e-9
+    crossings = 1.0 - straight_road
+    assert abs(crossings - cfg.crossing_prob) < 0.03  # few fallbacks at the default rounds
+    # each exit of a crossing is picked with probability 1/3 per round; rejection (the goal
+    # distance must fit on the arm) makes them unequal (left turns are the rarest)
+    for f in (straight_on, left, right):
+        assert 0.15 * crossings < f < 0.6 * crossings
+    # the one-round config falls back to straight roads often: still all four routes occur
+    b1, _ = make(SceneConfig(rounds=1), 2000, 7)
+    counts = torch.bincount(b1.route.long(), minlength=4)
+    assert (counts > 100).all()
+    assert counts[ROUTE_STRAIGHT_ROAD] > (1 - cfg.crossing_prob) * 2000 + 100  # fallbacks

@@ -34,6 +34,13 @@ stays in its half of the road and fully on it).
   straight-road scene (valid by construction).
 * Every start and goal rear axle stays ``curb_reach`` metres (the LiDAR range) inside the curb ends.
 
+Each scene records its **route** (``SceneBatch.route``): :data:`ROUTE_STRAIGHT_ROAD` (a straight
+road scene, fallbacks included), or at a crossing :data:`ROUTE_STRAIGHT_ON` (goal on the opposite
+arm), :data:`ROUTE_LEFT` or :data:`ROUTE_RIGHT` (goal on an arm of the other road, the heading
+turning counter-clockwise or clockwise). It and the other route descriptors (turn angle, crossing
+angle, road widths, goal distance) are derived from the drawn quantities: recording them draws no
+random numbers.
+
 Obstacles (the solvability rule)
 --------------------------------
 Up to ``max_obstacles`` rectangles parked along the curbs, aligned with their road (``mask``
@@ -79,6 +86,11 @@ from truckrl.sim.validation import ConfigError, param, validate
 CURB_SLOTS = 8
 #: ``kind`` values of scene segments.
 KIND_CURB, KIND_OBSTACLE = 0, 1
+#: ``route`` values of a scene: one straight road (crossing fallbacks included); at a crossing,
+#: straight on, a left turn (counter-clockwise) or a right turn (clockwise).
+ROUTE_STRAIGHT_ROAD, ROUTE_STRAIGHT_ON, ROUTE_LEFT, ROUTE_RIGHT = 0, 1, 2, 3
+#: Readable name of each ``route`` value, indexed by it.
+ROUTE_NAMES: tuple[str, ...] = ("straight road", "straight on", "left", "right")
 
 
 @dataclass
@@ -285,6 +297,16 @@ class SceneBatch:
             where ``crossing`` is ``False``.
         roads: ``[N, 2, 4]`` per road ``(centre x, centre y, heading, width)``.
         road_mask: ``[N, 2]`` bool, which roads exist.
+        route: ``[N]`` int8 route category: :data:`ROUTE_STRAIGHT_ROAD`, :data:`ROUTE_STRAIGHT_ON`,
+            :data:`ROUTE_LEFT` or :data:`ROUTE_RIGHT` (names in :data:`ROUTE_NAMES`).
+        turn_angle: ``[N]`` float [rad] signed heading change from start to goal, in
+            ``(-pi, pi]``, positive = left (counter-clockwise); 0 on a straight road and straight on.
+        crossing_angle: ``[N]`` float [rad] angle from road 0 to road 1 as sampled (in
+            ``SceneConfig.crossing_angle``); 0 where ``crossing`` is ``False``.
+        start_road_width: ``[N]`` float [m] curb-to-curb width of the start's road.
+        goal_road_width: ``[N]`` float [m] curb-to-curb width of the goal's road.
+        goal_distance: ``[N]`` float [m] straight-line distance between the start and goal
+            rear-axle centres.
     """
 
     segments: Tensor
@@ -296,6 +318,12 @@ class SceneBatch:
     intersection: Tensor
     roads: Tensor
     road_mask: Tensor
+    route: Tensor
+    turn_angle: Tensor
+    crossing_angle: Tensor
+    start_road_width: Tensor
+    goal_road_width: Tensor
+    goal_distance: Tensor
 
     def __len__(self) -> int:
         return self.segments.shape[0]
@@ -345,6 +373,7 @@ class _Roads:
     normals: Tensor  # [n, 2, 2] left normal n_r
     corners: Tensor  # [n, 4, 2] intersection parallelogram, counter-clockwise
     extent: Tensor  # [n, 2] e_r, the parallelogram's extent along d_r from P
+    angle: Tensor  # [n] crossing angle as sampled: road 1 is road 0 turned by it
 
 
 @dataclass
@@ -396,7 +425,7 @@ def generate_scenes(
     )
     crossing = rand(n) < cfg.crossing_prob
     roads = _sample_roads(cfg, rand, n, dev)
-    ok, cross_start, cross_goal = _crossing_poses(cfg, rand, roads, ext)
+    ok, cross_start, cross_goal, cross_route = _crossing_poses(cfg, rand, roads, ext)
     crossing = crossing & ok
     straight_start, straight_goal = _straight_poses(cfg, rand, roads, ext)
     c = crossing.unsqueeze(-1)
@@ -419,6 +448,9 @@ def generate_scenes(
         ),
         -1,
     )
+    route = torch.where(crossing, cross_route, ROUTE_STRAIGHT_ROAD).to(torch.int8)
+    turn = goal[:, 2] - start[:, 2]  # headings in [-pi, pi]: atan2 wraps to (-pi, pi]
+    turn_angle = torch.atan2(torch.sin(turn), torch.cos(turn))
     return SceneBatch(
         segments=segments * mask.unsqueeze(-1),
         mask=mask,
@@ -429,6 +461,12 @@ def generate_scenes(
         intersection=roads.corners,
         roads=road_table * road_mask.unsqueeze(-1),
         road_mask=road_mask,
+        route=route,
+        turn_angle=turn_angle,
+        crossing_angle=torch.where(crossing, roads.angle, 0.0),
+        start_road_width=_pick(roads.width, start[:, 3].long()),
+        goal_road_width=_pick(roads.width, goal[:, 3].long()),
+        goal_distance=(goal[:, :2] - start[:, :2]).norm(dim=-1),
     )
 
 
@@ -436,7 +474,8 @@ def _sample_roads(cfg: SceneConfig, rand, n: int, dev) -> _Roads:
     """Random centre, headings and widths, and the crossing parallelogram of every scene."""
     centre = (2.0 * rand(n, 2) - 1.0) * cfg.center_jitter
     h0 = wrap_angle(2.0 * math.pi * rand(n))
-    heading = torch.stack((h0, wrap_angle(h0 + _uniform(cfg.crossing_angle, rand(n)))), dim=-1)
+    angle = _uniform(cfg.crossing_angle, rand(n))
+    heading = torch.stack((h0, wrap_angle(h0 + angle)), dim=-1)
     width = _uniform(cfg.road_width, rand(n, 2))
     dirs = torch.stack((torch.cos(heading), torch.sin(heading)), dim=-1)
     normals = torch.stack((-dirs[..., 1], dirs[..., 0]), dim=-1)
@@ -454,7 +493,7 @@ def _sample_roads(cfg: SceneConfig, rand, n: int, dev) -> _Roads:
         dim=-1,
     )  # counter-clockwise: the map x -> (n0.x, n1.x) keeps orientation (det > 0)
     along = torch.einsum("nkc,nrc->nrk", corners - centre.unsqueeze(1), dirs)  # [n, 2, 4]
-    return _Roads(centre, heading, width, dirs, normals, corners, along.abs().amax(-1))
+    return _Roads(centre, heading, width, dirs, normals, corners, along.abs().amax(-1), angle)
 
 
 def _pose(x: Tensor, u: Tensor, road: Tensor) -> Tensor:
@@ -464,11 +503,13 @@ def _pose(x: Tensor, u: Tensor, road: Tensor) -> Tensor:
 
 def _crossing_poses(
     cfg: SceneConfig, rand, roads: _Roads, ext: _Extents
-) -> tuple[Tensor, Tensor, Tensor]:
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Start on an approach arm, goal on another arm, by ``cfg.rounds`` rounds of rejection.
 
     Returns:
-        ``ok [n]`` (a valid pair was found), start and goal ``[n, 4]`` (see :func:`_pose`).
+        ``ok [n]`` (a valid pair was found), start and goal ``[n, 4]`` (see :func:`_pose`), and
+        ``route [n]`` (long: :data:`ROUTE_STRAIGHT_ON`, :data:`ROUTE_LEFT` or
+        :data:`ROUTE_RIGHT`; :data:`ROUTE_STRAIGHT_ROAD` where not ``ok``).
     """
     n, dev = roads.centre.shape[0], roads.centre.device
     L, reach = cfg.half_extent, cfg.half_extent - cfg.curb_reach
@@ -476,6 +517,7 @@ def _crossing_poses(
     ok = torch.zeros(n, dtype=torch.bool, device=dev)
     start = torch.zeros(n, 4, device=dev)
     goal = torch.zeros(n, 4, device=dev)
+    route = torch.full((n,), ROUTE_STRAIGHT_ROAD, dtype=torch.long, device=dev)
     for _ in range(cfg.rounds):
         r = rand(n, 6)
         rs = (r[:, 0] < 0.5).long()
@@ -522,8 +564,15 @@ def _crossing_poses(
         take = (valid & ~ok).unsqueeze(-1)
         start = torch.where(take, _pose(xs, us, rs), start)
         goal = torch.where(take, _pose(q + a_g.unsqueeze(-1) * ug, ug, rg), goal)
+        # the picked exit: a turn goes left where the goal direction is counter-clockwise of the
+        # start direction (|cross| = sin(crossing angle) > 0 on the other road)
+        left = us[:, 0] * ug[:, 1] - us[:, 1] * ug[:, 0] > 0.0
+        picked = torch.where(
+            choice == 0, ROUTE_STRAIGHT_ON, torch.where(left, ROUTE_LEFT, ROUTE_RIGHT)
+        )
+        route = torch.where(take[:, 0], picked, route)
         ok = ok | valid
-    return ok, start, goal
+    return ok, start, goal, route
 
 
 def _straight_poses(cfg: SceneConfig, rand, roads: _Roads, ext: _Extents) -> tuple[Tensor, Tensor]:
