@@ -22,6 +22,7 @@ import torch
 from torch import Tensor
 
 from truckrl.sim.scene import (
+    ROUTE_KEYS,
     ROUTE_LEFT,
     ROUTE_NAMES,
     ROUTE_RIGHT,
@@ -55,14 +56,7 @@ ROAD_WIDTH_DIM = "road width [m]"
 GOAL_DISTANCE_DIM = "goal distance [m]"
 
 #: Per-episode inputs of :func:`episode_bins` (plus the trailer length, see there).
-INFO_KEYS = (
-    "route",
-    "turn_angle",
-    "crossing_angle",
-    "start_road_width",
-    "goal_road_width",
-    "goal_distance",
-)
+INFO_KEYS = ROUTE_KEYS
 #: Trailer parameters whose sum is the trailer length [m].
 TRAILER_KEYS = ("trailer_front_overhang", "trailer_wheelbase", "trailer_rear_overhang")
 #: Outcome flags of ``results`` (bool) and the name of their rate (``truncated`` = timeout).

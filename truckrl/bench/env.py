@@ -148,7 +148,6 @@ def _collector_rows(args: argparse.Namespace, compiled: bool) -> list[dict]:
 
     from truckrl.agent.network import ModelConfig, make_actor_critic
 
-
     rows = []
     for n in args.parallel_envs:
         env = _make_env(n, compiled, args.device, args.seed)

@@ -91,6 +91,15 @@ KIND_CURB, KIND_OBSTACLE = 0, 1
 ROUTE_STRAIGHT_ROAD, ROUTE_STRAIGHT_ON, ROUTE_LEFT, ROUTE_RIGHT = 0, 1, 2, 3
 #: Readable name of each ``route`` value, indexed by it.
 ROUTE_NAMES: tuple[str, ...] = ("straight road", "straight on", "left", "right")
+#: :class:`SceneBatch` fields that describe each episode's route (``[N]`` each).
+ROUTE_KEYS: tuple[str, ...] = (
+    "route",
+    "turn_angle",
+    "crossing_angle",
+    "start_road_width",
+    "goal_road_width",
+    "goal_distance",
+)
 
 
 @dataclass

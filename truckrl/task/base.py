@@ -55,6 +55,8 @@ OBSERVED_PARAMS = (
     "max_steer",
     "max_speed",
 )
+
+
 def sensor_origin(pose: Tensor, params: Any) -> Tensor:
     """LiDAR origin ``[N, 2]`` [m]: the centre of the tractor body.
 

@@ -21,7 +21,7 @@ from tensordict import TensorDict
 from torch import Tensor
 
 from truckrl.sim.geometry import wrap_angle
-from truckrl.sim.scene import SceneConfig, generate_scenes
+from truckrl.sim.scene import ROUTE_KEYS, SceneConfig, generate_scenes
 from truckrl.sim.validation import param, validate
 from truckrl.sim.vehicle import sample_vehicle_params
 from truckrl.task.base import Task
@@ -85,6 +85,7 @@ class IntersectionTask(Task):
         params = sample_vehicle_params(self.cfg.vehicle, m, rng, device)
         scenes = generate_scenes(self.cfg.task.scene, params, rng, device)
         scene = {k: getattr(scenes, k) for k in ("start", "goal", "segments", "mask", "kind")}
+        scene["route"] = {k: getattr(scenes, k) for k in ROUTE_KEYS}
         return self.initial_state(params, scene, device)
 
     def errors(self, pose: Tensor, goal: Tensor) -> dict[str, Tensor]:
