@@ -1,43 +1,69 @@
-"""The YAML under conf/ and the config dataclasses must carry the same defaults."""
+"""Hydra composition of the structured configs: presets, groups, overrides and the field table."""
 
-import dataclasses
-import math
-from pathlib import Path
+import pytest
 
-from hydra import compose, initialize_config_dir
-
-from truckrl.env import EnvConfig
-
-CONF = Path(__file__).resolve().parents[1] / "conf"
-
-
-def _same(a, b, where="env"):
-    """Field-by-field equality; floats to 1e-9 relative (YAML holds rounded radians)."""
-    if dataclasses.is_dataclass(a):
-        assert type(a) is type(b), where
-        for f in dataclasses.fields(a):
-            _same(getattr(a, f.name), getattr(b, f.name), f"{where}.{f.name}")
-    elif isinstance(a, (tuple, list)):
-        assert len(a) == len(b), where
-        for i, (x, y) in enumerate(zip(a, b, strict=True)):
-            _same(x, y, f"{where}[{i}]")
-    elif isinstance(a, float) or isinstance(b, float):
-        assert math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12), f"{where}: {a} != {b}"
-    else:
-        assert a == b, f"{where}: {a!r} != {b!r}"
+from tests.conftest import compose_config, run_cli
+from truckrl.cli import to_config
+from truckrl.configs import EvaluateConfig, PlayConfig, TrainConfig, main
+from truckrl.sim.control import LATERAL_MODES, LONGITUDINAL_MODES
+from truckrl.sim.validation import ConfigError
+from truckrl.task import task_names
 
 
-def test_env_yaml_defaults_equal_dataclass_defaults():
-    with initialize_config_dir(config_dir=str(CONF), version_base=None):
-        cfg = compose(config_name=None, overrides=["+env=default", "+control=accel_rate"])
-    _same(EnvConfig.from_hydra(cfg.env, cfg.control), EnvConfig())
+def test_defaults_compose_to_the_dataclass_defaults():
+    tc = to_config(TrainConfig, compose_config("train", "experiment=paper"))
+    assert tc == TrainConfig()  # the paper experiment overrides nothing
+    assert to_config(PlayConfig, compose_config("play")) == PlayConfig()
+    ec = to_config(EvaluateConfig, compose_config("evaluate", "checkpoint=x"))
+    assert ec == EvaluateConfig(checkpoint="x")
 
 
-def test_every_control_file_builds():
-    names = sorted(p.stem for p in (CONF / "control").glob("*.yaml"))
-    assert len(names) == 9
-    with initialize_config_dir(config_dir=str(CONF), version_base=None):
-        for name in names:
-            cfg = compose(config_name=None, overrides=["+env=default", f"+control={name}"])
-            built = EnvConfig.from_hydra(cfg.env, cfg.control)
-            assert f"{built.control.longitudinal}_{built.control.lateral}" == name
+@pytest.mark.parametrize("lon", LONGITUDINAL_MODES)
+@pytest.mark.parametrize("lat", LATERAL_MODES)
+def test_every_control_preset_composes(lon, lat):
+    tc = to_config(TrainConfig, compose_config("train", f"control={lon}_{lat}"))
+    assert (tc.env.control.longitudinal, tc.env.control.lateral) == (lon, lat)
+
+
+def test_every_task_is_a_group_option():
+    for name in task_names():
+        tc = to_config(TrainConfig, compose_config("train", f"task={name}"))
+        assert tc.env.task.name == name
+
+
+def test_list_and_nested_overrides():
+    tc = to_config(
+        TrainConfig,
+        compose_config("train", "env.task.scene.road_width=[12,16]", "model.numeric_hidden=[32]"),
+    )
+    assert tc.env.task.scene.road_width == (12.0, 16.0)
+    assert tc.model.numeric_hidden == (32,)
+
+
+@pytest.mark.parametrize(
+    ("override", "field"),
+    [
+        ("env.max_steps=0", "env.max_steps"),
+        ("env.task.scene.road_width=[18,12]", "env.task.scene.road_width"),
+        ("env.task.reward.success=nan", "env.task.reward.success"),
+        ("collector.num_envs=0", "collector.num_envs"),
+        ("device=gpu0", "device"),
+    ],
+)
+def test_bad_values_name_the_field(override, field):
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        to_config(TrainConfig, compose_config("train", override))
+
+
+def test_config_table_lists_every_field(capsys):
+    assert main(["env.task.reward"]) == 0
+    out = capsys.readouterr().out
+    assert "env.task.reward.progress" in out and "0.05" in out and "paper" in out
+    assert main(["no.such.prefix"]) == 2
+
+
+@pytest.mark.e2e
+def test_config_table_cli():
+    proc = run_cli("configs", "env.vehicle")
+    assert proc.returncode == 0, proc.stderr
+    assert "env.vehicle.wheelbase" in proc.stdout and "[3.4, 4.2]" in proc.stdout

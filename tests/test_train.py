@@ -11,34 +11,23 @@ from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from tests.conftest import ROOT, TINY_BATCH, TINY_TRAIN, compose_config, run_cli
 from truckrl.agent.checkpoint import load_checkpoint
+from truckrl.agent.ppo import PPOConfig
+from truckrl.cli import to_config
+from truckrl.configs import CollectorConfig, TrainConfig
 from truckrl.sim.validation import ConfigError
-from truckrl.train import CONFIG_PATH, CollectorConfig, TrainConfig, make_env, set_difficulty
+from truckrl.train import make_env, set_difficulty
 
-ROOT = Path(__file__).resolve().parent.parent
-BATCH = 16 * 16  # env.num_envs x collector.steps_per_env below
-TINY = [
-    "env.num_envs=16",
-    "collector.steps_per_env=16",
-    "ppo.num_minibatches=2",
-    "ppo.num_epochs=1",
-    "log.video_interval=0",
-    "log.progress_bar=false",
-]
+BATCH = TINY_BATCH
+pytestmark = pytest.mark.e2e
 
 
 def train(*args: str, check: bool = True, multirun: bool = False) -> subprocess.CompletedProcess:
     flags = ["--multirun"] if multirun else []
-    proc = subprocess.run(
-        [sys.executable, "-m", "truckrl.train", *flags, *TINY, *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    proc = run_cli("train", *flags, *TINY_TRAIN, *args)
     if check:
         assert proc.returncode == 0, proc.stdout + proc.stderr
     return proc
@@ -117,7 +106,7 @@ def test_sweep_runs_two_jobs(tmp_path):
 
 def test_sigkill_then_resume_loses_nothing_before_the_checkpoint(tmp_path):
     run = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "truckrl.train", *TINY, "total_frames=10000000"]
+    cmd = [sys.executable, "-m", "truckrl.train", *TINY_TRAIN, "total_frames=10000000"]
     cmd += ["checkpoint.interval=1", f"hydra.run.dir={run}"]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
@@ -148,13 +137,8 @@ def test_bad_config_is_one_clear_line_before_any_work(tmp_path):
     proc = train("ppo.num_minibatches=7", f"hydra.run.dir={tmp_path}", check=False)
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
-    assert proc.stderr.strip().startswith("ConfigError:") and "ppo.num_minibatches" in proc.stderr
+    assert proc.stderr.strip().startswith("error:") and "ppo.num_minibatches" in proc.stderr
     assert not (tmp_path / "checkpoints").exists()
-
-
-def compose_train(*overrides: str):
-    with initialize_config_dir(config_dir=CONFIG_PATH, version_base=None):
-        return compose("train", overrides=list(overrides))
 
 
 @pytest.mark.parametrize(
@@ -169,12 +153,13 @@ def compose_train(*overrides: str):
 )
 def test_bad_values_name_the_field(override, field):
     with pytest.raises(ConfigError, match=field):
-        TrainConfig.from_hydra(compose_train(override))
+        to_config(TrainConfig, compose_config("train", override))
 
 
 def test_paper_preset_has_the_paper_numbers():
-    tc = TrainConfig.from_hydra(compose_train("ppo=paper"))
-    assert tc.num_envs * tc.collector.workers == 24 and tc.collector.steps_per_env == 512
+    tc = to_config(TrainConfig, compose_config("train", "experiment=paper"))
+    assert tc.collector.num_envs * tc.collector.workers == 24
+    assert tc.collector.steps_per_env == 512
     p = tc.ppo
     assert (p.lr, p.num_epochs, p.num_minibatches, p.gamma, p.lmbda) == (1e-4, 8, 96, 0.99, 0.95)
     assert (p.clip_epsilon, p.entropy_coeff, p.value_coeff, p.max_grad_norm) == (
@@ -184,11 +169,19 @@ def test_paper_preset_has_the_paper_numbers():
         4.0,
     )
     assert p.lr_schedule == "adaptive" and p.desired_kl == 0.01
-    assert p.check_batch(tc.frames_per_batch) == 128  # paper: minibatch 128
+    assert p.check_batch(tc.collector.frames_per_batch) == 128  # paper: minibatch 128
+    assert not tc.env.compile
+
+
+def test_fast_experiment_is_the_default():
+    tc = to_config(TrainConfig, compose_config("train"))
+    assert tc.collector.frames_per_batch == 1024 * 64 and tc.env.compile
+    assert (tc.ppo.num_epochs, tc.ppo.num_minibatches, tc.ppo.lr) == (5, 16, 3e-4)
 
 
 def test_difficulty_reaches_every_parallel_worker():
-    tc = TrainConfig(num_envs=2, collector=CollectorConfig(workers=2, steps_per_env=2))
+    collector = CollectorConfig(workers=2, num_envs=2, steps_per_env=2)
+    tc = TrainConfig(collector=collector, ppo=PPOConfig(num_minibatches=2))
     env = make_env(tc, iteration=0)
     try:
         pos, deg = set_difficulty(env, 1.5)

@@ -217,11 +217,14 @@ def register() -> None:
 def main(argv: list[str]) -> int:
     """Print every config field (name, default, unit, allowed, meaning), optionally filtered."""
     prefix = argv[0] if argv else ""
+    tables = [spec_table(TrainConfig)]
+    tables += [spec_table(task_class(t).config_class, "env.task") for t in task_names()]
+    tables += [spec_table(PlayConfig, "play"), spec_table(EvaluateConfig, "evaluate")]
     rows = []
-    for root, cls in (("", TrainConfig), ("play", PlayConfig), ("evaluate", EvaluateConfig)):
-        for row in spec_table(cls, root):
-            if row[0].startswith(prefix) and row not in rows:
-                rows.append(row)
+    for row in (r for table in tables for r in table):
+        hidden = row[0] == "env.task" or row[0].startswith("play.env.")  # shown once, above
+        if row[0].startswith(prefix) and not hidden and row not in rows:
+            rows.append(row)
     if not rows:
         print(f"no config field starts with {prefix!r}", file=sys.stderr)
         return 2

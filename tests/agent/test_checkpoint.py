@@ -45,7 +45,7 @@ def test_round_trip_with_weights_only(tmp_path):
 
 def test_interrupted_write_keeps_previous_file(tmp_path, monkeypatch):
     path = tmp_path / "last.pt"
-    ckpt.save_checkpoint(path, {"version": 1, "x": torch.zeros(3)})
+    ckpt.save_checkpoint(path, {"version": ckpt.CHECKPOINT_VERSION, "x": torch.zeros(3)})
 
     def dying_save(obj, f):
         f.write(b"partial garbage")
@@ -53,7 +53,7 @@ def test_interrupted_write_keeps_previous_file(tmp_path, monkeypatch):
 
     monkeypatch.setattr(torch, "save", dying_save)
     with pytest.raises(KeyboardInterrupt):
-        ckpt.save_checkpoint(path, {"version": 1, "x": torch.ones(3)})
+        ckpt.save_checkpoint(path, {"version": ckpt.CHECKPOINT_VERSION, "x": torch.ones(3)})
     assert os.listdir(tmp_path) == ["last.pt"]  # no temp file left behind
     torch.testing.assert_close(ckpt.load_checkpoint(path)["x"], torch.zeros(3))
 
@@ -78,7 +78,7 @@ def test_rng_restore_replays_all_three_generators(tmp_path):
     torch.manual_seed(1)
     np.random.seed(2)  # noqa: NPY002
     random.seed(3)
-    ckpt.save_checkpoint(tmp_path / "r.pt", {"version": 1, "rng": ckpt.capture_rng()})
+    ckpt.save_checkpoint(tmp_path / "r.pt", {"version": ckpt.CHECKPOINT_VERSION, "rng": ckpt.capture_rng()})
     first = (torch.rand(4), np.random.rand(4), [random.random() for _ in range(4)])  # noqa: NPY002
     ckpt.restore_rng(ckpt.load_checkpoint(tmp_path / "r.pt")["rng"])
     again = (torch.rand(4), np.random.rand(4), [random.random() for _ in range(4)])  # noqa: NPY002

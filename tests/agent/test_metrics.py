@@ -5,7 +5,11 @@ import torch
 from tensordict import TensorDict
 
 from truckrl.agent.metrics import EpisodeTracker, episode_sums, finished_in_time_order
-from truckrl.env import REWARD_TERMS, TruckEnv
+from truckrl.env import TruckEnv
+from truckrl.task.intersection import IntersectionTask
+
+REWARD_TERMS = IntersectionTask.reward_keys
+ERRORS = IntersectionTask.error_quantities
 
 
 def loop_sums(x, done, carry):
@@ -65,7 +69,7 @@ def test_tracker_statistics_by_hand():
     pos = torch.tensor([[9.0, 1.0, 9.0], [9.0, 9.0, 3.0]])
     steps = torch.tensor([[4, 5, 1], [7, 8, 9]])
     r = torch.tensor([[1.0, 2.0, 4.0], [1.0, 1.0, 1.0]])
-    stats = EpisodeTracker().update(fake_batch(done, success, pos, steps, r))
+    stats = EpisodeTracker(REWARD_TERMS, ERRORS).update(fake_batch(done, success, pos, steps, r))
     assert stats["episodes"] == 2
     assert stats["success_rate"] == 0.5 and stats["collision_rate"] == 0.5
     assert stats["final_pos_error"] == pytest.approx(2.0)  # (1 + 3) / 2

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import pytest
 import torch
-from omegaconf import OmegaConf
 
 from truckrl.sim.control import (
     CONTROL_KEYS,
@@ -289,14 +288,3 @@ def test_bad_control_arguments():
         Control({"longitudinal": "accel", "steering": "rate"}, DT)
     with pytest.raises(ConfigError, match="control.lateral"):
         Control({"lateral": "wheel"}, DT)
-
-
-def test_control_yaml_files():
-    files = sorted((ROOT / "conf/control").glob("*.yaml"))
-    assert {f.stem for f in files} == {f"{lo}_{la}" for lo, la in PAIRS}
-    for f in files:
-        node = OmegaConf.load(f)
-        ctrl = Control(node, DT)  # accepts the Hydra node as is
-        assert f.stem == f"{ctrl.cfg.longitudinal}_{ctrl.cfg.lateral}"
-    default = OmegaConf.to_container(OmegaConf.load(ROOT / "conf/control/accel_rate.yaml"))
-    assert ControlConfig(**default) == ControlConfig()

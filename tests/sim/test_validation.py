@@ -229,7 +229,7 @@ def test_spec_of():
 # --------------------------------------------------------------------- the converted configs
 CONFIGS = [
     (VehicleConfig, "env.vehicle"),
-    (SceneConfig, "env.scene"),
+    (SceneConfig, "env.task.scene"),
     (LidarConfig, "env.lidar"),
     (ControlConfig, "control"),
     (PPOConfig, "ppo"),

@@ -8,11 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from omegaconf import OmegaConf
 
-from truckrl.sim.validation import ConfigError, from_mapping
+from truckrl.sim.validation import ConfigError
 from truckrl.sim.vehicle import (
-    PARAM_KEYS,
     VehicleConfig,
     jackknifed,
     kinematics_step,
@@ -445,12 +443,3 @@ def test_bad_substeps_rejected(substeps):
 def test_bad_vehicle_config_names_field(field, value):
     with pytest.raises(ConfigError, match=f"vehicle.{field}"):
         VehicleConfig(**{field: value})
-
-
-def test_vehicle_yaml_matches_dataclass_defaults():
-    data = OmegaConf.to_container(OmegaConf.load(ROOT / "conf/env/vehicle/default.yaml"))
-    assert set(data) == set(PARAM_KEYS) | {"min_speed"}
-    assert from_mapping(VehicleConfig, data, "vehicle") == VehicleConfig()
-    text = (ROOT / "conf/env/vehicle/default.yaml").read_text().splitlines()
-    keyed = [line for line in text if line and not line.startswith("#")]
-    assert all("#" in line and "[" in line.split("#", 1)[1] for line in keyed)  # units stated

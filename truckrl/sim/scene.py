@@ -104,7 +104,7 @@ ROUTE_KEYS: tuple[str, ...] = (
 
 @dataclass
 class SceneConfig:
-    """Scene generator parameters (``env.scene.*``). See the module doc for the rules.
+    """Scene generator parameters (``env.task.scene.*``). See the module doc for the rules.
 
     The paper (Sec. "Scenes and unified geometry") randomizes road widths, headings, centres,
     crossing angles, start/goal and obstacles without stating ranges; the defaults fit an
@@ -235,36 +235,36 @@ class SceneConfig:
     )
 
     def __post_init__(self) -> None:
-        validate(self, "env.scene")
+        validate(self, "env.task.scene")
         # Bounds that depend on other fields (see each field's doc).
         if self.curb_reach >= self.half_extent:
             raise ConfigError(
-                f"env.scene.curb_reach = {self.curb_reach} must be below "
-                f"env.scene.half_extent = {self.half_extent}"
+                f"env.task.scene.curb_reach = {self.curb_reach} must be below "
+                f"env.task.scene.half_extent = {self.half_extent}"
             )
         reach = 2.0 * (self.half_extent - self.curb_reach)
         if self.goal_distance[1] > reach:
             raise ConfigError(
-                f"env.scene.goal_distance = {list(self.goal_distance)}: values must be in "
+                f"env.task.scene.goal_distance = {list(self.goal_distance)}: values must be in "
                 f"(0, {reach}] (2 * (half_extent - curb_reach))"
             )
         half_road = 0.5 * self.road_width[0]
         if self.shoulder_gap[1] > half_road:
             raise ConfigError(
-                f"env.scene.shoulder_gap = {list(self.shoulder_gap)}: values must be in "
+                f"env.task.scene.shoulder_gap = {list(self.shoulder_gap)}: values must be in "
                 f"[0, {half_road}] (road_width min / 2)"
             )
         need = self.obstacle_length[1] + self.obstacle_min_gap
         if self.obstacle_spacing < need:
             raise ConfigError(
-                f"env.scene.obstacle_spacing = {self.obstacle_spacing} must be at least "
+                f"env.task.scene.obstacle_spacing = {self.obstacle_spacing} must be at least "
                 f"obstacle_length max + obstacle_min_gap = {need}"
             )
         strip = self.obstacle_curb_offset[1] + self.obstacle_width[1]
         room = self.road_width[0] - 2.0 * strip
         if self.min_free_corridor > room:
             raise ConfigError(
-                f"env.scene.min_free_corridor = {self.min_free_corridor} must be at most "
+                f"env.task.scene.min_free_corridor = {self.min_free_corridor} must be at most "
                 f"road_width min - 2 * (obstacle_curb_offset max + obstacle_width max) = {room}"
             )
         # Guarantees behind the obstacle rules (see module doc): the free corridor keeps
@@ -273,14 +273,14 @@ class SceneConfig:
         need = max(2.0 * self.obstacle_pose_clearance, self.obstacle_min_gap)
         if self.min_free_corridor < need:
             raise ConfigError(
-                f"env.scene.min_free_corridor = {self.min_free_corridor} must be at least "
-                f"max(2 * env.scene.obstacle_pose_clearance, env.scene.obstacle_min_gap) = {need}"
+                f"env.task.scene.min_free_corridor = {self.min_free_corridor} must be at least "
+                f"max(2 * env.task.scene.obstacle_pose_clearance, env.task.scene.obstacle_min_gap) = {need}"
             )
         sin_min = min(math.sin(a) for a in self.crossing_angle)
         need = max(self.obstacle_pose_clearance, self.obstacle_min_gap) / sin_min
         if self.obstacle_intersection_clearance < need:
             raise ConfigError(
-                f"env.scene.obstacle_intersection_clearance = "
+                f"env.task.scene.obstacle_intersection_clearance = "
                 f"{self.obstacle_intersection_clearance} must be at least "
                 f"max(obstacle_pose_clearance, obstacle_min_gap) / sin(crossing angle) = {need:.3f}"
             )
