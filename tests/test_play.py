@@ -9,25 +9,26 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
-from omegaconf import OmegaConf
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from tests.conftest import TINY_TRAIN, compose_config, run_cli
 from truckrl.agent.checkpoint import load_checkpoint
 from truckrl.agent.network import ModelConfig, make_actor_critic
-from truckrl.env import EnvConfig, TruckEnv
-from truckrl.play import CONFIG_PATH, PlayConfig, build, play
+from truckrl.agent.policy import saved_config
+from truckrl.cli import to_config
+from truckrl.configs import PlayConfig
+from truckrl.env import TruckEnv
+from truckrl.play import build_runner, play
 from truckrl.runner import LoopResult, Runner, run_loop
 from truckrl.sim.control import ControlConfig
-from truckrl.sim.validation import ConfigError
+from truckrl.sim.validation import ConfigError, build
+from truckrl.task import EnvConfig
 from truckrl.viz.keyboard import (
     Command,
     KeyboardConfig,
@@ -37,7 +38,6 @@ from truckrl.viz.keyboard import (
     parse_key_script,
 )
 
-ROOT = Path(__file__).resolve().parent.parent
 SMALL_VIEW = {"size_px": 96, "panel_px": 64}
 DT = 0.1  # [s] paper
 
@@ -48,11 +48,11 @@ def drive(
     """Play a key script headless; return the runner, the loop result and the state per frame."""
     keys = tmp_path / "keys.txt"
     keys.write_text(script)
-    pc = PlayConfig(headless=True, actions=str(keys), view=SMALL_VIEW, **options)
-    runner, inputs, _, _ = build(pc, env_cfg or EnvConfig())
+    pc = PlayConfig(headless=True, actions=str(keys), view=SMALL_VIEW, env=env_cfg, **options)
+    runner, inputs, _, _ = build_runner(pc)
     states: list = []
     result = run_loop(
-        runner, inputs, episodes=1, sinks=(lambda r: states.append(r.env.state_of(0)),)
+        runner, inputs, episodes=1, sinks=(lambda r: states.append(r.env.get_state()[0]),)
     )
     return runner, result, states
 
@@ -162,7 +162,7 @@ def test_restart_key_replays_the_scene_and_new_scene_key_changes_it(tmp_path):
     twin = TruckEnv(num_envs=1, seed=0)
     twin.reset()
     twin.reset()
-    assert torch.equal(twin.state_of(0)["goal"], after_new["goal"])
+    assert torch.equal(twin.get_state()[0]["goal"], after_new["goal"])
 
 
 def test_pause_then_step_key_advances_exactly_one_frame(tmp_path):
@@ -188,7 +188,7 @@ def test_record_writes_every_frame_shown(tmp_path):
     keys.write_text("W 6\nWA 3\n")
     video = tmp_path / "sub" / "run.mp4"
     pc = PlayConfig(headless=True, actions=str(keys), record=str(video), view=SMALL_VIEW)
-    result = play(pc, EnvConfig())
+    result = play(pc)
     assert result.frames == 10
     cap = cv2.VideoCapture(str(video))
     frames = []
@@ -203,23 +203,24 @@ def test_record_writes_every_frame_shown(tmp_path):
 
 
 def test_headless_without_input_drives_one_random_episode(tmp_path):
-    pc = PlayConfig(headless=True, view=SMALL_VIEW, strip=str(tmp_path / "s.png"), strip_height=32)
     env_cfg = EnvConfig(max_steps=12)
-    result = play(pc, env_cfg)
+    strip = str(tmp_path / "s.png")
+    pc = PlayConfig(headless=True, view=SMALL_VIEW, strip=strip, strip_height=32, env=env_cfg)
+    result = play(pc)
     assert len(result.outcomes) == 1 and result.frames == result.steps + 1 <= 13
     strip = cv2.imread(str(tmp_path / "s.png"))
     assert strip.shape[0] == 32 and strip.shape[1] == 5 * 32 + 4 * 6  # 5 square tiles, 6 px gaps
-    capped = play(PlayConfig(headless=True, view=SMALL_VIEW, max_frames=4), env_cfg)
+    capped = play(PlayConfig(headless=True, view=SMALL_VIEW, max_frames=4, env=env_cfg))
     assert capped.frames == 4 and capped.steps == 3
 
 
 def test_same_seed_same_scene_as_the_env_with_the_training_config_groups():
-    with initialize_config_dir(config_dir=CONFIG_PATH, version_base=None):
-        cfg = compose("play", overrides=["seed=5", "control=speed_angle", "env.max_steps=50"])
-    pc = PlayConfig.from_hydra(cfg)
-    env_cfg = EnvConfig.from_hydra(cfg.env, cfg.control)
+    cfg = compose_config("play", "seed=5", "control=speed_angle", "env.max_steps=50")
+    pc = to_config(PlayConfig, cfg)
+    env_cfg = pc.env
     assert (env_cfg.control.longitudinal, env_cfg.control.lateral) == ("speed", "angle")
-    runner, _, _, _ = build(pc, dataclasses.replace(env_cfg, compile=True))
+    pc.env = dataclasses.replace(env_cfg, compile=True)
+    runner, _, _, _ = build_runner(pc)
     assert runner.env.config.max_steps == 50 and runner.mode == "manual"
     assert runner.env.config.compile is False  # one truck: always eager
     ref = TruckEnv(num_envs=1, seed=5, config=env_cfg).reset()
@@ -232,23 +233,21 @@ def test_same_seed_same_scene_as_the_env_with_the_training_config_groups():
 def run_dir(tmp_path_factory) -> Path:
     """A checkpoint from the real training entry point with tiny settings."""
     d = tmp_path_factory.mktemp("run")
-    tiny = ["env.num_envs=8", "collector.steps_per_env=8", "ppo.num_minibatches=1"]
-    tiny += ["ppo.num_epochs=1", "log.video_interval=0", "log.progress_bar=false"]
-    tiny += ["env.compile=false"]  # the compile is slow and the viewer runs eagerly anyway
-    cmd = [sys.executable, "-m", "truckrl.train", *tiny, "total_frames=64", f"hydra.run.dir={d}"]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    proc = run_cli("train", *TINY_TRAIN, "total_frames=64", f"hydra.run.dir={d}")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return d
 
 
 def test_policy_plays_the_mean_action_in_the_seeded_scene(run_dir):
-    pc = PlayConfig(headless=True, checkpoint=str(run_dir), seed=11, view=SMALL_VIEW)
-    runner, inputs, _, _ = build(pc, EnvConfig(max_steps=5))  # ignored: the checkpoint's env
+    pc = PlayConfig(
+        headless=True, checkpoint=str(run_dir), seed=11, view=SMALL_VIEW, env=EnvConfig(max_steps=5)
+    )  # env ignored: the checkpoint's
+    runner, inputs, _, _ = build_runner(pc)
     assert runner.mode == "policy" and runner.env.config.max_steps == 200
     first = runner.first_observation
     state = load_checkpoint(run_dir)
-    saved = OmegaConf.create(state["config"])
-    ref_cfg = EnvConfig.from_hydra(saved.env, saved.control)
+    state["path"] = run_dir
+    ref_cfg = build(EnvConfig, saved_config(state)["env"])
     ref_cfg.compile = False  # the viewer steps one truck eagerly
     ref = TruckEnv(num_envs=1, seed=11, config=ref_cfg).reset()
     assert torch.equal(first["observation"], ref["observation"])
@@ -266,12 +265,12 @@ def test_policy_plays_the_mean_action_in_the_seeded_scene(run_dir):
     assert runner.mode == "manual"
 
 
+@pytest.mark.e2e
 def test_policy_cli_records_video(run_dir, tmp_path):
     video = tmp_path / "policy.mp4"
-    cmd = [sys.executable, "-m", "truckrl.play", f"checkpoint={run_dir}", "headless=true"]
-    cmd += ["max_frames=6", f"record={video}", "view.size_px=64", "view.panel_px=0"]
-    cmd += [f"hydra.run.dir={tmp_path}"]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    args = [f"checkpoint={run_dir}", "headless=true", "max_frames=6", f"record={video}"]
+    args += ["view.size_px=64", "view.panel_px=0", f"hydra.run.dir={tmp_path}"]
+    proc = run_cli("play", *args)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     cap = cv2.VideoCapture(str(video))
     assert cap.get(cv2.CAP_PROP_FRAME_COUNT) == 6
@@ -279,18 +278,17 @@ def test_policy_cli_records_video(run_dir, tmp_path):
 
 
 @pytest.mark.parametrize("kind", ["missing", "corrupt"])
+@pytest.mark.e2e
 def test_bad_checkpoint_is_one_line_and_exit_code_2(kind, tmp_path):
     path = tmp_path / "nonexistent.pt"
     if kind == "corrupt":
         path = tmp_path / "last.pt"
         path.write_bytes(b"PK\x03\x04 definitely not a torch file")
-    cmd = [sys.executable, "-m", "truckrl.play", f"checkpoint={path}", "headless=true"]
-    cmd += [f"hydra.run.dir={tmp_path}"]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    proc = run_cli("play", f"checkpoint={path}", "headless=true", f"hydra.run.dir={tmp_path}")
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("CheckpointError")
+    assert len(lines) == 1 and lines[0].startswith("error:")
     assert ("not found" if kind == "missing" else "cannot read") in lines[0]
 
 
@@ -302,23 +300,23 @@ def test_bad_options_name_the_field(tmp_path):
     with pytest.raises(ConfigError, match="not both"):
         PlayConfig(checkpoint="a", actions="b")
     with pytest.raises(ConfigError, match="actions file not found"):
-        build(PlayConfig(headless=True, actions=str(tmp_path / "nope.txt")), EnvConfig())
+        build_runner(PlayConfig(headless=True, actions=str(tmp_path / "nope.txt")))
     bad = tmp_path / "a.npy"
     np.save(bad, np.zeros((4, 3)))
     with pytest.raises(ConfigError, match=r"shape \[F >= 1, 2\]"):
-        build(PlayConfig(headless=True, actions=str(bad)), EnvConfig())
+        build_runner(PlayConfig(headless=True, actions=str(bad)))
 
 
 def test_npy_actions_replay_until_the_array_ends(tmp_path):
     arr = tmp_path / "a.npy"
     np.save(arr, np.array([[1.0, 0.0]] * 4, dtype=np.float32))
-    runner, inputs, _, _ = build(
-        PlayConfig(headless=True, actions=str(arr), view=SMALL_VIEW), EnvConfig()
+    runner, inputs, _, _ = build_runner(
+        PlayConfig(headless=True, actions=str(arr), view=SMALL_VIEW)
     )
     result = run_loop(runner, inputs)
-    a = float(runner.env.state_of(0)["params", "max_accel"])
+    a = float(runner.env.get_state()[0]["params", "max_accel"])
     assert result.steps == 4 and runner.mode == "replay"
-    assert float(runner.env.state_of(0)["speed"]) == pytest.approx(4 * a * DT, rel=1e-5)
+    assert float(runner.env.get_state()[0]["speed"]) == pytest.approx(4 * a * DT, rel=1e-5)
 
 
 # ---------------------------------------------------------------------------------- window
@@ -327,7 +325,7 @@ def test_pygame_window_runs_with_posted_keys(monkeypatch):
     pygame = pytest.importorskip("pygame")
     from truckrl.viz.window import Window
 
-    runner, _, _, _ = build(PlayConfig(view=SMALL_VIEW), EnvConfig())
+    runner, _, _, _ = build_runner(PlayConfig(view=SMALL_VIEW))
     assert runner.mode == "manual"
     script = {
         2: (pygame.K_p, "p"),
@@ -354,4 +352,4 @@ def test_pygame_window_runs_with_posted_keys(monkeypatch):
     assert len(calls) == 8 and result.steps == 3
     assert runner.paused and runner.env.get_difficulty() == 0.5
     assert np.array_equal(shown, runner.frame)
-    assert float(runner.env.state_of(0)["speed"]) > 0
+    assert float(runner.env.get_state()[0]["speed"]) > 0

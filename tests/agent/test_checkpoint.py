@@ -78,7 +78,9 @@ def test_rng_restore_replays_all_three_generators(tmp_path):
     torch.manual_seed(1)
     np.random.seed(2)  # noqa: NPY002
     random.seed(3)
-    ckpt.save_checkpoint(tmp_path / "r.pt", {"version": ckpt.CHECKPOINT_VERSION, "rng": ckpt.capture_rng()})
+    ckpt.save_checkpoint(
+        tmp_path / "r.pt", {"version": ckpt.CHECKPOINT_VERSION, "rng": ckpt.capture_rng()}
+    )
     first = (torch.rand(4), np.random.rand(4), [random.random() for _ in range(4)])  # noqa: NPY002
     ckpt.restore_rng(ckpt.load_checkpoint(tmp_path / "r.pt")["rng"])
     again = (torch.rand(4), np.random.rand(4), [random.random() for _ in range(4)])  # noqa: NPY002
