@@ -1,8 +1,10 @@
 """Task lookup by name: ``truckrl.task.<name>`` is a module that defines ``TASK``.
 
-Adding a task is one module here (a :class:`~truckrl.task.base.Task` subclass with its config
-class, exported as ``TASK``) and, for Hydra, one preset file ``conf/task/<name>.yaml``; the env,
-the agent and the entry points find it by name.
+Adding a task is one module here: a :class:`~truckrl.task.base.Task` subclass with its config
+class (a :class:`~truckrl.task.config.TaskConfig` whose ``name`` is the module name), exported as
+``TASK``. Hydra offers it as ``task=<name>`` (``truckrl.configs.register`` finds every module); the
+env, the agent and the entry points find it by name. A task outside this package works from Python
+with its dotted module path as the name (``name="mypkg.parking"``).
 """
 
 from __future__ import annotations
@@ -34,10 +36,11 @@ def task_class(name: str) -> type[Task]:
     Raises:
         ConfigError: no such task module, or it defines no ``TASK``.
     """
-    if not isinstance(name, str) or not name.isidentifier() or name in _NOT_TASKS:
+    parts = name.split(".") if isinstance(name, str) else [""]
+    if not all(p.isidentifier() for p in parts) or name in _NOT_TASKS:
         raise ConfigError(f"env.task.name = {name!r} is not one of {task_names()}")
     try:
-        module = importlib.import_module(f"truckrl.task.{name}")
+        module = importlib.import_module(name if len(parts) > 1 else f"truckrl.task.{name}")
     except ModuleNotFoundError:
         raise ConfigError(f"env.task.name = {name!r} is not one of {task_names()}") from None
     cls = getattr(module, "TASK", None)
