@@ -15,11 +15,11 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from tests.conftest import ROOT, TINY_BATCH, TINY_TRAIN, compose_config, run_cli
 from truckrl.agent.checkpoint import load_checkpoint
-from truckrl.agent.ppo import PPOConfig
+from truckrl.agent.collection import make_env, set_difficulty
 from truckrl.cli import to_config
-from truckrl.configs import CollectorConfig, TrainConfig
+from truckrl.configs import TrainConfig
 from truckrl.sim.validation import ConfigError
-from truckrl.train import make_env, set_difficulty
+from truckrl.task import EnvConfig
 
 BATCH = TINY_BATCH
 pytestmark = pytest.mark.e2e
@@ -180,9 +180,7 @@ def test_fast_experiment_is_the_default():
 
 
 def test_difficulty_reaches_every_parallel_worker():
-    collector = CollectorConfig(workers=2, num_envs=2, steps_per_env=2)
-    tc = TrainConfig(collector=collector, ppo=PPOConfig(num_minibatches=2))
-    env = make_env(tc, iteration=0)
+    env = make_env(EnvConfig(), workers=2, num_envs=2, seed=0)
     try:
         pos, deg = set_difficulty(env, 1.5)
         assert pos == pytest.approx(30.0 * 2**-1.5)  # paper: 30 m x 2^-d

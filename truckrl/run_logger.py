@@ -15,6 +15,7 @@ frames is logged as the image ``video/rollout``.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -72,6 +73,19 @@ class RunLogger:
             "video/rollout", frame_strip(frames, count=6), step, dataformats="HWC"
         )
         return path
+
+    def rollout_video(
+        self, actor, env_cfg: EnvConfig, difficulty: float, seed: int, steps: int, device,
+        iteration: int, step: int, fps: float,
+    ) -> bool:  # fmt: skip
+        """Record and log one deterministic episode; False (with a warning) if video is unusable."""
+        try:
+            frames = record_episode(actor, env_cfg, difficulty, seed, steps, device)
+        except ImportError as e:
+            warnings.warn(f"rollout videos disabled: {e}", stacklevel=2)
+            return False
+        self.video(frames, iteration, step, fps)
+        return True
 
     def flush(self) -> None:
         self.writer.flush()

@@ -21,21 +21,15 @@ bit-identical one.
 
 from __future__ import annotations
 
-import functools
-import math
 import sys
 import time
-import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import numpy as np
-import torch
 import yaml
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 from torchrl.collectors import Collector
-from torchrl.envs import EnvBase, ParallelEnv
 from tqdm import tqdm
 
 from truckrl.agent.checkpoint import (
@@ -45,6 +39,7 @@ from truckrl.agent.checkpoint import (
     restore_rng,
     save_training_state,
 )
+from truckrl.agent.collection import check_difficulty, make_env, set_difficulty
 from truckrl.agent.curriculum import Curriculum
 from truckrl.agent.metrics import (
     EpisodeTracker,
@@ -57,8 +52,7 @@ from truckrl.agent.policy import saved_config
 from truckrl.agent.ppo import PPO
 from truckrl.cli import git_revision, hydra_entry, seed_everything, to_config
 from truckrl.configs import TrainConfig
-from truckrl.env import TruckEnv
-from truckrl.run_logger import RunLogger, record_episode
+from truckrl.run_logger import RunLogger
 from truckrl.task import make_task
 
 #: Top-level keys a resumed run takes from the command line; all others come from the checkpoint.
@@ -94,32 +88,6 @@ def resumed_config(saved: dict, current: dict) -> dict:
     return {**saved, **{k: current[k] for k in RESUME_OVERRIDES if k in current}}
 
 
-def env_seed(seed: int, iteration: int, worker: int) -> int:
-    """Independent, reproducible seed per (run seed, session start iteration, worker)."""
-    return int(np.random.SeedSequence([seed, iteration, worker]).generate_state(1)[0])
-
-
-def make_env(tc: TrainConfig, iteration: int) -> EnvBase:
-    """One in-process TruckEnv (``workers=1``) or a ParallelEnv of batched TruckEnvs."""
-    c = tc.collector
-    make = functools.partial(TruckEnv, num_envs=c.num_envs, device=tc.device, config=tc.env)
-    if c.workers == 1:
-        return make(seed=env_seed(tc.seed, iteration, 0))
-    fns = [functools.partial(make, seed=env_seed(tc.seed, iteration, w)) for w in range(c.workers)]
-    env = ParallelEnv(c.workers, fns, device=tc.device)
-    env.start()
-    return env
-
-
-def set_difficulty(env: EnvBase, difficulty: float) -> tuple[float, float]:
-    """Send the difficulty to every worker; return ``(position [m], heading [deg])`` tolerances
-    read back from the (first) environment."""
-    env.set_difficulty(difficulty)
-    tol = env.tolerances()
-    pos, ang = tol[0] if isinstance(env, ParallelEnv) else tol
-    return float(pos.reshape(-1)[0]), math.degrees(float(ang.reshape(-1)[0]))
-
-
 def should_stop(tc: TrainConfig, counters: Counters, cur: Curriculum, start: float) -> bool:
     if tc.total_frames is not None and counters.frames >= tc.total_frames:
         return True
@@ -129,13 +97,18 @@ def should_stop(tc: TrainConfig, counters: Counters, cur: Curriculum, start: flo
 
 
 def train(tc: TrainConfig, run_dir: Path, state: dict | None = None) -> Counters:
-    """Run (or, with a loaded checkpoint ``state``, resume) one training job."""
+    """Run (or, with a loaded checkpoint ``state``, resume) one training job.
+
+    One recipe, top to bottom like TorchRL's ``ppo_mujoco.py`` (create env, models, PPO,
+    collector, logger; then the loop): splitting it would hide the order the parts depend on.
+    """
     cfg_yaml = yaml.safe_dump(asdict(tc), sort_keys=False)
     counters = Counters(**state["counters"]) if state else Counters()
     seed_everything(tc.seed)
 
     # Create environment
-    env = make_env(tc, counters.iteration)
+    c = tc.collector
+    env = make_env(tc.env, c.workers, c.num_envs, tc.seed, counters.iteration, tc.device)
     num_obs = env.observation_spec["observation"].shape[-1]
     num_beams = env.observation_spec["lidar"].shape[-1]
     task = make_task(tc.env)  # the task's vocabulary: reward terms and errors
@@ -205,9 +178,7 @@ def train(tc: TrainConfig, run_dir: Path, state: dict | None = None) -> Counters
             t1 = time.perf_counter()
 
             # Episode statistics and curriculum
-            reached = batch["next", "difficulty"][..., -1, :]
-            if not torch.isclose(reached, torch.full_like(reached, curriculum.difficulty)).all():
-                raise RuntimeError(f"difficulty {curriculum.difficulty} did not reach every worker")
+            check_difficulty(batch, curriculum.difficulty)
             stats = tracker.update(batch)
             promoted = curriculum.update(
                 finished_in_time_order(batch, "success"),
@@ -235,13 +206,10 @@ def train(tc: TrainConfig, run_dir: Path, state: dict | None = None) -> Counters
             pbar.set_postfix(fps=f"{timing['perf/fps']:.0f}", diff=curriculum.difficulty,
                              ema=f"{curriculum.ema:.2f}", refresh=False)  # fmt: skip
             if video_ok and counters.iteration % tc.log.video_interval == 0:
-                try:
-                    frames_rgb = record_episode(ac.actor, tc.env, curriculum.difficulty, tc.seed,
-                                                tc.log.video_steps, tc.device)  # fmt: skip
-                    logger.video(frames_rgb, counters.iteration, counters.frames, tc.log.video_fps)
-                except ImportError as e:
-                    warnings.warn(f"rollout videos disabled: {e}", stacklevel=1)
-                    video_ok = False
+                video_ok = logger.rollout_video(
+                    ac.actor, tc.env, curriculum.difficulty, tc.seed, tc.log.video_steps,
+                    tc.device, counters.iteration, counters.frames, tc.log.video_fps,
+                )  # fmt: skip
             if counters.iteration % tc.checkpoint.interval == 0:
                 save()
         finished = True
