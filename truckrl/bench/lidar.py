@@ -128,6 +128,8 @@ def _fit_exponents(rows: list[dict], key: str) -> dict[str, float]:
     return {"exp_R": float(b), "exp_E": float(c), "exp_R_plus_E": float(d)}
 
 
+# Long on purpose: the benchmark grid, its timing loops and its JSON record read top to
+# bottom; helpers would only move the loop variables around.
 def run(args: argparse.Namespace) -> dict:
     if args.threads:
         torch.set_num_threads(args.threads)

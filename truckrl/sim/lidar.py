@@ -205,6 +205,8 @@ class SweepLidar:
         self._seg = self._seg_np = self._order = None
         self._num_seg = -1
 
+    # Long on purpose: the paper's sweep (events, open-edge list, ray hits) is one stateful
+    # loop; pieces of it would share every local.
     def __call__(
         self,
         origin: Tensor,

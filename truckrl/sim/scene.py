@@ -394,6 +394,8 @@ class _Extents:
     half_width: Tensor  # half the wider body
 
 
+# Long on purpose: the batched stages (roads, poses, curbs, obstacles) stay in one sequence so
+# the order of random draws, which fixes every seed's scenes, is visible in one place.
 def generate_scenes(
     cfg: SceneConfig,
     params: dict[str, Tensor],

@@ -115,6 +115,8 @@ def make_view(
 
 # Long on purpose: one pass that paints the layers in z-order (tolerance, curbs, obstacles,
 # LiDAR, bodies, goal, HUD); split up, each piece would need the view and a dozen arrays.
+# Long on purpose: one pass paints the layers in z-order (tolerance, curbs, obstacles, LiDAR,
+# bodies, goal, HUD); split up, each piece would need the view and a dozen arrays.
 def draw_scene(
     segments,
     mask=None,
