@@ -20,7 +20,7 @@ neither a checkpoint nor actions drives one episode with uniform random actions.
 
 With a checkpoint, the env and control config come from the checkpoint (the policy was trained
 for them); ``seed``, ``difficulty`` (default: the checkpoint's curriculum difficulty) and
-``device`` come from the command line. Config: ``conf/play.yaml``. Exit code 2 with a one-line
+``device`` come from the command line. Fields: ``PlayConfig`` in ``truckrl/configs.py``. Exit code 2 with a one-line
 message for a bad config, a missing or corrupt checkpoint, or a bad actions file.
 """
 

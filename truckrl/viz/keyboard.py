@@ -100,7 +100,7 @@ def command_for(key: str) -> Command | None:
 
 @dataclass(frozen=True)
 class KeyboardConfig:
-    """Set-point speeds of the keyboard mapping (``keyboard.*`` in ``conf/play.yaml``).
+    """Set-point speeds of the keyboard mapping (``keyboard.*`` of the viewer).
 
     A rate of 1.0 action units / s moves a set-point from one end of the range to the middle in
     1 s.
