@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -75,6 +76,9 @@ def test_run_writes_events_config_and_checkpoint(run_dir):
     tol = acc.Scalars("curriculum/tolerance_position_m")[0].value
     assert tol == pytest.approx(30.0)  # paper: 30 m at difficulty 0
     assert (run_dir / ".hydra" / "config.yaml").is_file()
+    source = json.loads((run_dir / "source.json").read_text())
+    assert len(source["commit"]) == 40 and isinstance(source["dirty"], bool)
+    assert load_checkpoint(run_dir)["source"] == source
 
 
 def test_resume_continues_counters_and_steps(run_dir, tmp_path):

@@ -21,6 +21,7 @@ bit-identical one.
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -141,6 +142,7 @@ def train(tc: TrainConfig, run_dir: Path, state: dict | None = None) -> Counters
     logger = RunLogger(run_dir, purge_step=counters.frames + 1 if state else None)
     if not state:
         logger.config(cfg_yaml, asdict(tc), hparam_metrics(0.0, 0.0))
+        (run_dir / "source.json").write_text(json.dumps(git_revision()) + "\n")
     print(f"run dir: {run_dir}; batch {tc.collector.frames_per_batch:,} frames/iteration")
 
     def save(final: bool = False) -> None:
