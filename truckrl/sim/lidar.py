@@ -24,6 +24,7 @@ spacing before beam 0 again, so the layout is uniform across the seam and beams 
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,7 @@ import torch
 from torch import Tensor
 
 from truckrl.sim.geometry import (
+    RAY_TOLERANCE_ULPS,
     point_segment_distance,
     ray_segment_distance,
     to_local,
@@ -44,15 +46,12 @@ METHODS: tuple[str, ...] = ("dense", "span")
 #: Angular padding [rad] added to both ends of a segment's interval before deciding which beams
 #: may hit it. Extra candidates cost a little work; a missing one costs a wrong range, so the
 #: padding is generous compared to the float64 (sweep) and float32 (batched) angle round-off.
+#: On top of it comes twice the angle that ray_segment_distance's beam half-width subtends
+#: (:func:`~truckrl.sim.geometry.ray_tolerance`): a beam that close to a segment end touches it.
 _SWEEP_PAD = 1e-6
 _SPAN_PAD = 1e-4
 #: Largest padding [rad] the span form allows, so its fixed gather width stays bounded.
 _SPAN_PAD_MAX = 1e-2
-#: ray_segment_distance accepts hits up to ``1e-7 * length`` past a segment end; padding covers
-#: twice that, seen from the sensor.
-_END_SLACK = 2e-7
-#: Coordinate round-off [m] assumed for float32 world coordinates of O(100 m).
-_F32_COORD_EPS = 1e-5
 #: A sensor closer than this [m] to a segment may hit it from every direction at ~0 m.
 _ON_SEGMENT = 1e-9
 
@@ -121,6 +120,11 @@ def beam_angles(
     return angles.to(dtype)
 
 
+def _beam_angle(eps: float) -> float:
+    """Twice the angle [rad] ray_segment_distance's beam half-width subtends, for ``eps``."""
+    return 2.0 * math.sqrt(2.0) * RAY_TOLERANCE_ULPS * eps
+
+
 def lidar_oracle(
     origin: Tensor,
     heading: float,
@@ -131,7 +135,10 @@ def lidar_oracle(
 ) -> Tensor:
     """Reference LiDAR: each ray against every in-range segment (the paper's simple loop).
 
-    Computed in float64 whatever the input dtype.
+    Computed in float64 whatever the input dtype, with the beam half-width of the input dtype
+    (:func:`~truckrl.sim.geometry.ray_segment_distance`'s ``eps``): a float32 scene is judged to
+    float32 precision, so a beam running along a segment to within float32 round-off grazes it,
+    as the float32 scan says, although it may miss it by a micrometre in exact arithmetic.
 
     Args:
         origin: ``[2]`` sensor position [m].
@@ -144,6 +151,7 @@ def lidar_oracle(
     Returns:
         ``[R]`` first-hit distances [m] in ``segments.dtype``, exactly ``max_range`` for no hit.
     """
+    eps = torch.finfo(segments.dtype).eps
     o = origin.detach().to(torch.float64).cpu()
     seg = segments.detach().to(torch.float64).cpu()
     keep = point_segment_distance(o.view(1, 2), seg).view(-1) <= max_range  # range pre-filter
@@ -153,7 +161,7 @@ def lidar_oracle(
     angles = float(heading) + rel_angles.detach().to(torch.float64).cpu()
     out = torch.full((angles.numel(),), float(max_range), dtype=torch.float64)
     for r in range(angles.numel()):
-        d = ray_segment_distance(o, angles[r : r + 1], seg)  # [1, E']
+        d = ray_segment_distance(o, angles[r : r + 1], seg, eps=eps)  # [1, E']
         if d.numel():
             out[r] = d.min().clamp_max(max_range)
     return out.to(segments.dtype)
@@ -237,6 +245,7 @@ class SweepLidar:
             self._order = None
             self._scene_id = scene_id
         seg, seg_np = self._seg, self._seg_np
+        eps = torch.finfo(segments.dtype).eps  # beam half-width of the input precision
         num_rays, num_e = self.num_rays, seg.shape[0]
         heading = float(heading)
         o = origin.detach().to(torch.float64).cpu()
@@ -255,9 +264,7 @@ class SweepLidar:
         flip = ccw > math.pi
         start = np.where(flip, ang[:, 1], ang[:, 0])
         span = np.where(flip, 2.0 * math.pi - ccw, ccw)
-        length = np.hypot(seg_np[:, 2] - seg_np[:, 0], seg_np[:, 3] - seg_np[:, 1])
-        near = np.maximum(np.hypot(vx, vy).min(axis=1), 1e-300)
-        pad = _SWEEP_PAD + _END_SLACK * length / near
+        pad = _SWEEP_PAD + _beam_angle(eps)
         lo = start - pad
         hi = start + span + pad
         full = active & ((hi - lo >= 2.0 * math.pi) | (dist <= _ON_SEGMENT))
@@ -295,7 +302,7 @@ class SweepLidar:
         if cand_r and num_e:
             ri = torch.tensor(cand_r)
             d = ray_segment_distance(
-                o, angles[ri].unsqueeze(-1), seg[torch.tensor(cand_e)][:, None]
+                o, angles[ri].unsqueeze(-1), seg[torch.tensor(cand_e)][:, None], eps=eps
             )
             out.scatter_reduce_(0, ri, d.view(-1).clamp_max(self.max_range), reduce="amin")
         return out.to(segments.dtype)
@@ -323,6 +330,9 @@ def lidar_scan(
         method: ``"dense"`` (every ray x every segment) or ``"span"`` (each segment x the beams
             inside its angular interval). Both give the oracle's ranges, except that ``"span"``
             sees a segment the sensor lies on (within round-off) over one half-circle only.
+            ``"span"`` reads the beam layout once per ``rel_angles`` tensor to size its gather
+            (one host sync for a device tensor, then cached); under ``torch.compile`` it cannot,
+            and gathers all ``R`` beams per segment instead.
 
     Returns:
         ``[..., R]`` first-hit distances [m], exactly ``max_range`` where nothing is hit.
@@ -338,20 +348,53 @@ def lidar_scan(
         if d.shape[-1] == 0:
             return torch.full(d.shape[:-1], float(max_range), dtype=d.dtype, device=d.device)
         return d.amin(-1).clamp_max(max_range)
-    return _span_scan(local, mask, rel_angles.to(local), max_range)
+    width = _span_width(rel_angles)
+    return _span_scan(local, mask, rel_angles.to(local), max_range, width)
+
+
+#: Gather widths of the span form by beam-angle tensor: ``id -> (weakref, version, width)``.
+_SPAN_WIDTHS: dict[int, tuple[weakref.ref, int, int]] = {}
 
 
 def _span_width(rel_angles: Tensor) -> int:
-    """Most beams a padded interval of ``pi + 2 * _SPAN_PAD_MAX`` can hold (from the shape only)."""
+    """Most beams of the layout ``rel_angles [R]`` inside one padded segment interval.
+
+    A segment's interval spans at most ``pi`` plus ``2 * _SPAN_PAD_MAX`` of padding; how many beams
+    that holds depends on their spacing (``2*pi / R`` for the full circle, ``fov / (R - 1)`` for
+    a partial field of view), so it is counted on the beam angles themselves, plus one for
+    round-off. The count is cached per tensor (and its version counter), so a device tensor costs
+    one host sync. Under ``torch.compile`` the values are unknown and every beam is gathered.
+    """
     num = rel_angles.shape[-1]
-    step = 2.0 * math.pi / num
-    return min(num, math.floor((math.pi + 2.0 * _SPAN_PAD_MAX) / step) + 2)
+    if num <= 1 or torch.compiler.is_compiling():
+        return num
+    key = id(rel_angles)
+    version = None if rel_angles.is_inference() else rel_angles._version  # inference: no cache
+    cached = _SPAN_WIDTHS.get(key) if version is not None else None
+    if cached is not None and cached[0]() is rel_angles and cached[1] == version:
+        return cached[2]
+    a = np.sort(rel_angles.detach().to(torch.float64).cpu().numpy().reshape(-1))
+    ring = np.concatenate((a, a + 2.0 * math.pi))  # beams of the next turn, for wrapped intervals
+    window = math.pi + 2.0 * _SPAN_PAD_MAX
+    ends = np.searchsorted(ring, a + window * (1.0 + 1e-6) + 1e-6, side="right")
+    width = min(num, int((ends - np.arange(num)).max()) + 1)
+    if version is not None:
+        _SPAN_WIDTHS[key] = (
+            weakref.ref(rel_angles, lambda _, k=key: _SPAN_WIDTHS.pop(k, None)),
+            version,
+            width,
+        )
+    return width
 
 
-def _span_scan(local: Tensor, mask: Tensor | None, rel: Tensor, max_range: float) -> Tensor:
-    """Span form of :func:`lidar_scan` on sensor-frame segments ``local [..., E, 4]``."""
+def _span_scan(
+    local: Tensor, mask: Tensor | None, rel: Tensor, max_range: float, width: int
+) -> Tensor:
+    """Span form of :func:`lidar_scan` on sensor-frame segments ``local [..., E, 4]``.
+
+    ``width`` (:func:`_span_width`) bounds the number of beams inside any segment's interval.
+    """
     num_r = rel.shape[-1]
-    width = _span_width(rel)
     batch = local.shape[:-2]
     x0, y0, x1, y1 = local.unbind(-1)
     a0, a1 = torch.atan2(y0, x0), torch.atan2(y1, x1)
@@ -360,9 +403,7 @@ def _span_scan(local: Tensor, mask: Tensor | None, rel: Tensor, max_range: float
     flip = ccw > math.pi
     start = torch.where(flip, a1, a0)
     span = torch.where(flip, two_pi - ccw, ccw)
-    length = torch.hypot(x1 - x0, y1 - y0)
-    near = torch.minimum(torch.hypot(x0, y0), torch.hypot(x1, y1)).clamp_min(1e-12)
-    pad = (_SPAN_PAD + (_END_SLACK * length + _F32_COORD_EPS) / near).clamp_max(_SPAN_PAD_MAX)
+    pad = _SPAN_PAD + _beam_angle(torch.finfo(local.dtype).eps)  # <= _SPAN_PAD_MAX
     lo = wrap_angle(start - pad)
     width_ang = span + 2.0 * pad
     # First beam at or after the interval start (wrapping past the last beam to beam 0), then a
