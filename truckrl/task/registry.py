@@ -11,12 +11,7 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
-from typing import TYPE_CHECKING
-
 from truckrl.sim.validation import ConfigError
-
-if TYPE_CHECKING:
-    from truckrl.task.base import Task
 
 _NOT_TASKS = {"base", "config", "registry", "schema"}
 
@@ -30,8 +25,8 @@ def task_names() -> list[str]:
     )
 
 
-def task_class(name: str) -> type[Task]:
-    """The :class:`Task` subclass of task ``name``.
+def task_class(name: str) -> type:
+    """The :class:`~truckrl.task.base.Task` subclass of task ``name``.
 
     Raises:
         ConfigError: no such task module, or it defines no ``TASK``.
