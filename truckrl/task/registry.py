@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+
 from truckrl.sim.validation import ConfigError
 
 _NOT_TASKS = {"base", "config", "registry", "schema"}
