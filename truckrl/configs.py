@@ -110,7 +110,9 @@ class EvaluateConfig:
     episodes: int = param(100, lo=1, hi=10_000_000, doc="one episode per seeded scene")
     seed: int = param(12345, lo=0, hi=SEED_MAX, doc="scene seed: same seed, same scenes")
     device: str = param("cpu", doc="env and policy device")
-    output: str | None = param(None, doc="JSON file; null: <hydra run dir>/eval.json")
+    output: str | None = param(
+        None, doc="JSON file; null: <run dir of the checkpoint>/eval/<difficulty>-<seed>.json"
+    )
 
     def __post_init__(self) -> None:
         validate(self)
