@@ -2,17 +2,73 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
+import torch
 
+import truckrl.evaluate as evaluate_module
 from tests.conftest import run_cli
+from truckrl.agent.categories import (
+    TRAILER_DIM,
+    episode_bins,
+    scene_info,
+    summarize_by_category,
+)
 from truckrl.agent.checkpoint import CheckpointError
 from truckrl.agent.rollout import evaluate_policy
 from truckrl.configs import EvaluateConfig
 from truckrl.evaluate import evaluate
+from truckrl.sim.scene import ROUTE_KEYS, generate_scenes
+from truckrl.sim.validation import ConfigError
+from truckrl.sim.vehicle import sample_vehicle_params
 
 MAX_STEPS = 40  # the tiny checkpoint's env.max_steps
+SCENE_KEYS = (*ROUTE_KEYS, "trailer_length")
+
+
+def generated_scenes(env_cfg, episodes: int, seed: int) -> dict:
+    """The first ``episodes`` scenes of ``seed``, made without the env: the intersection task draws
+    the vehicles, then the scenes, ``max(episodes, episode_pool)`` at a time."""
+    g = torch.Generator().manual_seed(seed)
+    n = max(episodes, env_cfg.episode_pool)
+    params = sample_vehicle_params(env_cfg.vehicle, n, g)
+    info = scene_info(generate_scenes(env_cfg.task.scene, params, g), params)
+    return {k: v[:episodes] for k, v in info.items()}
+
+
+def test_scene_info_lines_up_with_generated_scenes_and_results(tiny_checkpoint):
+    _, _, tc = tiny_checkpoint
+    cfg = dataclasses.replace(tc.env, max_steps=3)
+
+    def stand_still(td):  # a plain callable policy: zero acceleration and steering rate
+        return td.set("action", torch.zeros(td.batch_size[0], 2))
+
+    res, _, _ = evaluate_policy(stand_still, cfg, 6.0, episodes=12, seed=21)  # 0.47 m: no success
+    expected = generated_scenes(cfg, 12, 21)
+    for k in SCENE_KEYS:
+        torch.testing.assert_close(res[k], expected[k].to(res[k].dtype), msg=k)
+    # the truck never moved: each episode's final error is its own scene's start-goal distance
+    torch.testing.assert_close(res["pos_error"], expected["goal_distance"], atol=1e-4, rtol=0)
+    assert res["truncated"].all() and (res["length"] == 3).all()
+
+
+def test_category_rows_match_an_independent_recomputation(tiny_checkpoint):
+    _, ac, tc = tiny_checkpoint
+    res, _, _ = evaluate_policy(ac.actor, tc.env, 1.0, episodes=24, seed=5)
+    rows = summarize_by_category(res, episode_bins(res))
+    expected_bins = episode_bins(generated_scenes(tc.env, 24, 5))
+    assert rows == summarize_by_category(res, expected_bins)
+    assert rows[0]["dimension"] == "route"
+    by_dim = {}
+    for r in rows:
+        by_dim[r["dimension"]] = by_dim.get(r["dimension"], 0) + r["count"]
+    assert by_dim["route"] == by_dim[TRAILER_DIM] == 24
+    for r in rows:  # each bin's success rate, counted by hand from the recomputed bins
+        mask = expected_bins[r["dimension"]][r["bin"]]
+        assert r["count"] == int(mask.sum())
+        assert r["success_rate"] == pytest.approx(res["success"][mask].float().mean().item())
 
 
 def test_outcomes_agree_with_final_errors(tiny_checkpoint):
@@ -48,6 +104,75 @@ def test_cli_is_deterministic_and_matches_in_process_run(tiny_checkpoint, tmp_pa
 
 
 @pytest.mark.e2e
+def test_cli_prints_categories_and_writes_them_beside_the_run(tiny_checkpoint, tmp_path):
+    run, ac, tc = tiny_checkpoint
+    args = [f"checkpoint={run}", "episodes=12", "seed=8", "difficulty=1.5"]
+    proc = run_cli("evaluate", *args, f"hydra.run.dir={tmp_path}")
+    assert proc.returncode == 0, proc.stderr
+    out = run / "eval" / "1.5-8.json"
+    written = json.loads(out.read_text())
+    printed = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert printed["output"] == str(out)
+    assert written["categories"] == printed["categories"]
+    res, _, _ = evaluate_policy(ac.actor, tc.env, 1.5, episodes=12, seed=8)
+    expected = summarize_by_category(res, episode_bins(generated_scenes(tc.env, 12, 8)))
+    assert [(r["dimension"], r["bin"], r["count"]) for r in written["categories"]] == [
+        (r["dimension"], r["bin"], r["count"]) for r in expected
+    ]
+    for got, want in zip(written["categories"], expected, strict=True):
+        assert got["success_rate"] == pytest.approx(want["success_rate"])
+    table = proc.stdout.split("by scene category")[1]
+    assert "dimension" in table and "turn [deg]" in table and "goal distance [m]" in table
+    assert proc.stdout.index("final error") < proc.stdout.index("by scene category")
+
+
+@pytest.mark.e2e
+def test_unwritable_output_is_one_line_before_any_episode(tiny_checkpoint, tmp_path):
+    run, _, _ = tiny_checkpoint
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    out = blocker / "sub" / "eval.json"  # its folder cannot be made, even by root
+    args = [f"checkpoint={run}", "episodes=12", f"output={out}"]
+    proc = run_cli("evaluate", *args, f"hydra.run.dir={tmp_path}")
+    assert proc.returncode == 2
+    assert proc.stdout == ""  # no results: a late failure would print them first
+    assert proc.stderr.strip().startswith("error: output=") and str(out) in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_output_is_checked_before_the_episodes_run(tiny_checkpoint, tmp_path, monkeypatch):
+    run, _, _ = tiny_checkpoint
+    (tmp_path / "eval.json").mkdir()
+
+    def fail(*args, **kwargs):
+        raise AssertionError("episodes ran before the output check")
+
+    monkeypatch.setattr(evaluate_module, "evaluate_policy", fail)
+    ec = EvaluateConfig(checkpoint=str(run), episodes=2, output=str(tmp_path / "eval.json"))
+    with pytest.raises(ConfigError, match="cannot write"):
+        evaluate(ec)
+
+
+def test_late_write_failure_prints_the_results_first(
+    tiny_checkpoint, tmp_path, monkeypatch, capsys
+):
+    run, _, _ = tiny_checkpoint
+
+    def full_disk(path, data):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(evaluate_module, "write_json", full_disk)
+    ec = EvaluateConfig(checkpoint=str(run), episodes=4, seed=3, output=str(tmp_path / "e.json"))
+    with pytest.raises(ConfigError, match="results above were not written") as err:
+        evaluate(ec)
+    assert len(str(err.value).splitlines()) == 1 and "No space left" in str(err.value)
+    stdout = capsys.readouterr().out
+    assert "by scene category" in stdout
+    assert json.loads(stdout.strip().splitlines()[-1])["episodes"] == 4
+    assert not list(tmp_path.iterdir())  # no stray probe or temporary files
+
+
+@pytest.mark.e2e
 def test_missing_checkpoint_is_one_line(tmp_path):
     proc = run_cli("evaluate", f"checkpoint={tmp_path / 'nope.pt'}", f"hydra.run.dir={tmp_path}")
     assert proc.returncode == 2
@@ -61,4 +186,4 @@ def test_corrupt_checkpoint_raises_checkpoint_error(tiny_checkpoint, tmp_path):
     bad = tmp_path / "bad.pt"
     bad.write_bytes((run / "checkpoints" / "last.pt").read_bytes()[:500])
     with pytest.raises(CheckpointError, match="cannot read"):
-        evaluate(EvaluateConfig(checkpoint=str(bad), episodes=2, seed=0), tmp_path)
+        evaluate(EvaluateConfig(checkpoint=str(bad), episodes=2, seed=0))

@@ -81,6 +81,22 @@ def test_run_writes_events_config_and_checkpoint(run_dir):
     assert load_checkpoint(run_dir)["source"] == source
 
 
+def test_heldout_evaluation_is_logged(run_dir, tmp_path):
+    evals = ["log.eval_interval_min=0.001", "log.eval_episodes=4", "env.max_steps=20"]
+    train(f"total_frames={BATCH}", *evals, f"hydra.run.dir={tmp_path}")  # due after 0.06 s
+    acc = EventAccumulator(str(tmp_path / "tb"))
+    acc.Reload()
+    tags = set(acc.Tags()["scalars"])
+    assert {"eval/success_rate", "eval/collision_rate", "eval/timeout_rate"} <= tags, tags
+    assert any(t.startswith("eval/route/") and t.endswith("/success") for t in tags), tags
+    steps = [e.step for e in acc.Scalars("eval/success_rate")]
+    assert steps == [BATCH]
+    assert all(0.0 <= e.value <= 1.0 for e in acc.Scalars("eval/success_rate"))
+    defaults = EventAccumulator(str(run_dir / "tb"))  # default: every 5 min, not in a short run
+    defaults.Reload()
+    assert not [t for t in defaults.Tags()["scalars"] if t.startswith("eval/")]
+
+
 def test_resume_continues_counters_and_steps(run_dir, tmp_path):
     proc = train(f"resume={run_dir}", f"total_frames={6 * BATCH}", f"hydra.run.dir={tmp_path}")
     assert "resumed" in proc.stdout

@@ -55,6 +55,16 @@ class LogConfig:
     video_steps: int = param(200, lo=1, hi=100_000, unit="frames", doc="max frames per video")
     video_fps: float = param(10.0, lo=0.0, hi=1000.0, lo_open=True, unit="1/s", doc="video rate")
     progress_bar: bool = param(True, doc="tqdm progress bar")
+    eval_interval_min: float = param(
+        5.0,
+        lo=0.0,
+        hi=1e7,
+        unit="min",
+        doc="wall clock between held-out evaluations (truckrl/agent/heldout.py; 0: never)",
+    )
+    eval_episodes: int = param(
+        200, lo=1, hi=1_000_000, unit="episodes", doc="held-out scenes per evaluation"
+    )
 
 
 @dataclass
@@ -65,6 +75,19 @@ class CheckpointConfig:
     keep_every: int = param(
         0, lo=0, hi=1e9, unit="iterations", doc="also keep iter_XXXXXX.pt every N (0: never)"
     )
+
+
+#: Top-level keys (:class:`TrainConfig` fields) a resumed run takes from the command line; all
+#: others come from the checkpoint (``truckrl.train.resumed_config``).
+RESUME_OVERRIDES = (
+    "total_frames",
+    "max_minutes",
+    "stop_difficulty",
+    "resume",
+    "device",
+    "log",
+    "checkpoint",
+)
 
 
 @dataclass
@@ -110,7 +133,9 @@ class EvaluateConfig:
     episodes: int = param(100, lo=1, hi=10_000_000, doc="one episode per seeded scene")
     seed: int = param(12345, lo=0, hi=SEED_MAX, doc="scene seed: same seed, same scenes")
     device: str = param("cpu", doc="env and policy device")
-    output: str | None = param(None, doc="JSON file; null: <hydra run dir>/eval.json")
+    output: str | None = param(
+        None, doc="JSON file; null: <run dir of the checkpoint>/eval/<difficulty>-<seed>.json"
+    )
 
     def __post_init__(self) -> None:
         validate(self)

@@ -42,6 +42,7 @@ from truckrl.agent.checkpoint import (
 )
 from truckrl.agent.collection import check_difficulty, make_env, set_difficulty
 from truckrl.agent.curriculum import Curriculum
+from truckrl.agent.heldout import heldout_due, heldout_scalars
 from truckrl.agent.metrics import (
     EpisodeTracker,
     finished_in_time_order,
@@ -52,20 +53,9 @@ from truckrl.agent.network import make_actor_critic, parameter_count
 from truckrl.agent.policy import saved_config
 from truckrl.agent.ppo import PPO
 from truckrl.cli import git_revision, hydra_entry, seed_everything, to_config
-from truckrl.configs import TrainConfig
+from truckrl.configs import RESUME_OVERRIDES, TrainConfig
 from truckrl.run_logger import RunLogger
 from truckrl.task import make_task
-
-#: Top-level keys a resumed run takes from the command line; all others come from the checkpoint.
-RESUME_OVERRIDES = (
-    "total_frames",
-    "max_minutes",
-    "stop_difficulty",
-    "resume",
-    "device",
-    "log",
-    "checkpoint",
-)
 
 
 @dataclass
@@ -212,6 +202,13 @@ def train(tc: TrainConfig, run_dir: Path, state: dict | None = None) -> Counters
                     ac.actor, tc.env, curriculum.difficulty, tc.seed, tc.log.video_steps,
                     tc.device, counters.iteration, counters.frames, tc.log.video_fps,
                 )  # fmt: skip
+            # Held-out scenes every log.eval_interval_min minutes (truckrl/agent/heldout.py)
+            elapsed, window = time.monotonic() - session_start, time.perf_counter() - t0
+            if heldout_due(tc.log.eval_interval_min, elapsed, window):
+                evals = heldout_scalars(
+                    ac.actor, tc.env, curriculum.difficulty, tc.log.eval_episodes, tc.device
+                )
+                logger.scalars(evals, counters.frames)
             if counters.iteration % tc.checkpoint.interval == 0:
                 save()
         finished = True

@@ -4,19 +4,26 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import torch
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import Tensor
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from truckrl.agent.categories import trailer_length
 from truckrl.env import TruckEnv
+from truckrl.sim.scene import ROUTE_KEYS
 from truckrl.task import OUTCOMES, EnvConfig, Quantity, shown
+
+#: What :func:`evaluate_policy` runs: a TorchRL actor, or any ``td -> td`` that sets "action".
+Policy = TensorDictModuleBase | Callable[[TensorDictBase], TensorDictBase]
 
 
 @torch.no_grad()
 def evaluate_policy(
-    actor: TensorDictModuleBase,
+    actor: Policy,
     env_cfg: EnvConfig,
     difficulty: float,
     episodes: int,
@@ -28,11 +35,26 @@ def evaluate_policy(
     All episodes run as one batch; each env's first episode is recorded at its first ``done``
     (every episode ends by ``env_cfg.max_steps``). The same ``seed`` gives the same scenes.
 
+    Args:
+        actor: the policy. A TorchRL actor (``TensorDictModule``) runs under
+            ``ExplorationType.DETERMINISTIC``, i.e. with its mean action. Any other callable
+            ``td -> td`` works too (a scripted or planning controller): it gets the env's
+            tensordict ``[E]`` ("observation", "lidar", the flags...) and must return a
+            tensordict ``[E]`` with "action" ``[E, 2]`` in [-1, 1], as ``TruckEnv.step`` takes.
+            It runs under ``torch.no_grad()``.
+
     Returns:
         ``(results, (position tolerance [m], heading tolerance [deg]), errors)``: ``results``
         holds per-episode ``[E]`` tensors on CPU: one bool per outcome flag ("success",
         "collision", "jackknife", "truncated"), "length" [steps] and each of the task's
-        ``errors`` at the episode's last step, in its shown unit (m or deg).
+        ``errors`` at the episode's last step, in its shown unit (m or deg). It also holds each
+        episode's scene, read from the env's state at reset, so that row ``i`` of every entry
+        is the same episode: "trailer_length" [m] (front overhang + wheelbase + rear overhang)
+        and, for tasks whose scenes record a route (``state["route"]``; the intersection task
+        does), the :data:`~truckrl.sim.scene.ROUTE_KEYS`: "route" (long, ``ROUTE_*``),
+        "turn_angle" and "crossing_angle" [rad], "start_road_width", "goal_road_width" and
+        "goal_distance" [m]. ``results`` is thus a valid input of
+        :func:`truckrl.agent.categories.episode_bins`.
     """
     # eager: a one-off batch does not repay ~20 s of torch.compile
     env_cfg = dataclasses.replace(env_cfg, compile=False)
@@ -46,6 +68,10 @@ def evaluate_policy(
     rec = {k: torch.zeros(episodes, device=device) for k in keys}
     ended = torch.zeros(episodes, dtype=torch.bool, device=device)
     td = env.reset()
+    start = env.get_state()
+    scene = {"trailer_length": trailer_length(start["params"])}
+    if "route" in start.keys():
+        scene |= {k: start["route", k] for k in ROUTE_KEYS}
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(env_cfg.max_steps):
             nxt = env.step(actor(td))["next"]
@@ -61,6 +87,8 @@ def evaluate_policy(
     out["length"] = rec["step_count"].cpu()
     for q in errors:
         out[q.key] = shown(q, rec[q.key]).cpu()
+    for k, v in scene.items():
+        out[k] = v.long().cpu() if k == "route" else v.cpu()
     return out, tolerance, errors
 
 
