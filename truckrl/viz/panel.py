@@ -50,9 +50,11 @@ def with_banner(
     color: tuple[int, int, int] = COLORS["hud"],
     subtitle: str = "",
 ) -> np.ndarray:
-    """A copy of ``view`` with a centred banner: ``title`` large in ``color``, ``subtitle`` below.
+    """A copy of ``view`` with a banner near the top: ``title`` large in ``color``, ``subtitle``
+    below, centred.
 
-    The banner is a darkened band across the image; its text scales with the image width.
+    The banner is a darkened band across the image, below the caption line (the truck usually
+    sits near the centre of the view and stays visible); its text scales with the image width.
     """
     img = view.copy()
     h, w = img.shape[:2]
@@ -62,7 +64,7 @@ def with_banner(
     (sw, sh), _ = cv2.getTextSize(subtitle, font, 0.6 * scale, 1) if subtitle else ((0, 0), 0)
     gap = round(14 * scale)
     band = th + (sh + gap if subtitle else 0) + 2 * gap
-    top = max(0, (h - band) // 2)
+    top = min(max(28, h // 16), max(0, h - band))
     region = img[top : top + band]
     region[:] = (region.astype(np.uint16) * 3 // 10).astype(np.uint8)  # darken to 30 %
     y = top + gap + th
