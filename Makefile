@@ -27,6 +27,7 @@ lint: $(STAMP)
 
 test: lint
 	SDL_VIDEODRIVER=dummy $(BIN)/python -m pytest $(ARGS)
+	$(BIN)/python -m pytest -m wheel
 
 format: $(STAMP)
 	$(BIN)/ruff format .

@@ -26,7 +26,7 @@ from truckrl.agent.checkpoint import CheckpointError
 from truckrl.configs import register
 from truckrl.sim.validation import ConfigError, build
 
-CONFIG_PATH = str(Path(__file__).resolve().parent.parent / "conf")
+CONFIG_PATH = str(Path(__file__).resolve().parent / "conf")  # package data: works installed too
 
 T = TypeVar("T")
 

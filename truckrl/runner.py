@@ -9,6 +9,12 @@ from keyboard input, through the identical frame loop, renderer and safety clamp
 action clamp and non-finite guard apply to every source), the viewer commands (restart, new scene,
 pause, single step, difficulty, mode) and the rendered frame; :func:`run_loop` is the one loop
 that polls an input (a window, a key script, or nothing), steps, and shows/records frames.
+Training videos (:func:`truckrl.run_logger.record_episode`) record through a :class:`Runner` with a
+:class:`PolicySource` too: one renderer for the viewer and the videos.
+
+In a window, a keyboard-driven episode waits for the first drive key (the episode clock and its
+step limit start then), and a finished episode keeps its outcome banner until a key is pressed or
+``done_hold_s`` passes. Headless runs (scripts, tests, recordings) never wait.
 """
 
 from __future__ import annotations
@@ -28,10 +34,19 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from truckrl.env import TruckEnv
 from truckrl.sim.control import ControlConfig, commanded
 from truckrl.sim.validation import check_choice, param, validate
+from truckrl.sim.vehicle import truck_corners
 from truckrl.task import MAX_DIFFICULTY, OUTCOMES, shown_float
 from truckrl.viz.draw import COLORS, draw_state
-from truckrl.viz.keyboard import KEY_HELP, Command, KeyboardConfig, KeyInput, KeyMapper, command_for
-from truckrl.viz.panel import Line, with_panel
+from truckrl.viz.keyboard import (
+    DRIVE_KEYS,
+    Command,
+    KeyboardConfig,
+    KeyInput,
+    KeyMapper,
+    command_for,
+    key_help,
+)
+from truckrl.viz.panel import Line, with_banner, with_panel
 from truckrl.viz.video import frame_strip
 
 _OK, _BAD, _NOTE = COLORS["goal"], (255, 95, 95), COLORS["lidar"]
@@ -48,7 +63,9 @@ class EndOfInput(Exception):
 class ViewConfig:
     """Camera and frame layout (``view.*``)."""
 
-    follow: bool = param(False, doc="false: fixed camera on start and goal; true: follow the truck")
+    follow: bool = param(
+        False, doc="false: fixed camera on the start truck and the goal; true: follow the truck"
+    )
     size_px: int = param(640, lo=64, hi=4096, unit="px", doc="side of the bird's-eye view")
     half_extent: float = param(
         40.0, lo=1.0, hi=1e4, unit="m", doc="half the view side (at least half start-goal + margin)"
@@ -142,6 +159,9 @@ class Runner:
         mode: the source used first.
         view: camera and panel layout.
         difficulty_step: change of difficulty per +/- key.
+        wait_for_key: in "manual" mode, each episode waits for the first drive key (or P, ".")
+            before its first step; :func:`run_loop` turns it on for a window.
+        show_keys: key help in the panel (default: when there is a "manual" source).
     """
 
     def __init__(
@@ -151,13 +171,20 @@ class Runner:
         mode: str,
         view: ViewConfig = ViewConfig(),  # noqa: B008 (frozen dataclass)
         difficulty_step: float = 0.5,
+        wait_for_key: bool = False,
+        show_keys: bool | None = None,
     ) -> None:
         if env.num_envs != 1:
             raise ValueError(f"the viewer drives one truck, got num_envs={env.num_envs}")
         check_choice("mode", mode, tuple(sources))
         self.env, self.sources, self.mode = env, sources, mode
         self.view, self.difficulty_step = view, difficulty_step
+        self.wait_for_key = wait_for_key
+        self.show_keys = "manual" in sources if show_keys is None else show_keys
+        #: extra banner text for a finished episode (what a key does next; set by run_loop)
+        self.done_hint = ""
         self.paused = False
+        self.waiting = False
         self.episodes_done = 0
         self.frame_id = 0
         self._step_once = False
@@ -168,6 +195,7 @@ class Runner:
         """A new random scene (the env's next episode)."""
         td = self.env.reset()
         self._start = self.env.get_state()
+        self._camera = self._fixed_camera()
         self._begin(td)
 
     def restart(self) -> None:
@@ -181,6 +209,14 @@ class Runner:
         self.last_action: Tensor | None = None
         self.episode_return = 0.0
         self.outcome: str | None = None
+        self.waiting = self.wait_for_key and self.mode == "manual"
+        self.render()
+
+    def set_wait_for_key(self, on: bool) -> None:
+        """Turn waiting for the first key on or off; applies to the current episode if unstarted."""
+        self.wait_for_key = on
+        unstarted = self.last is None and not self.ended
+        self.waiting = on and unstarted and self.mode == "manual"
         self.render()
 
     @property
@@ -196,9 +232,12 @@ class Runner:
             self.new_scene()
             return
         if cmd is Command.PAUSE:
-            self.paused = not self.paused
+            if self.waiting:  # P starts a waiting episode
+                self.waiting = self.paused = False
+            else:
+                self.paused = not self.paused
         elif cmd is Command.STEP:
-            self.paused, self._step_once = True, True
+            self.paused, self._step_once, self.waiting = True, True, False
         elif cmd in (Command.HARDER, Command.EASIER):
             sign = 1.0 if cmd is Command.HARDER else -1.0
             d = self.env.get_difficulty() + sign * self.difficulty_step
@@ -206,6 +245,7 @@ class Runner:
         elif cmd is Command.TOGGLE_MODE:
             if {"manual", "policy"} <= set(self.sources):
                 self.mode = "policy" if self.mode == "manual" else "manual"
+                self.waiting = False
         else:
             return
         self.render()
@@ -216,6 +256,11 @@ class Runner:
         Raises:
             EndOfInput: the action source has nothing more to play.
         """
+        if self.waiting and not self._step_once:
+            if not set(held) & set(DRIVE_KEYS):
+                return False
+            self.waiting = False
+            self.render()
         if self.ended or (self.paused and not self._step_once):
             return False
         self._step_once = False
@@ -231,18 +276,26 @@ class Runner:
         return True
 
     # -------------------------------------------------------------- drawing
+    def _fixed_camera(self) -> dict[str, Any]:
+        """Centre and half extent [m] that show the whole start truck and the goal, with margin."""
+        s = self._start
+        tractor, trailer, _ = truck_corners(s["pose"], s["params"])
+        pts = torch.cat((tractor[0], trailer[0], s["goal"][0, None, :2])).cpu()
+        lo, hi = pts.min(0).values, pts.max(0).values
+        half = 0.5 * float((hi - lo).max()) + self.view.margin
+        return {"center": 0.5 * (lo + hi), "view_half_extent": max(self.view.half_extent, half)}
+
     def render(self) -> None:
-        """Draw the current state: ``self.view_image`` (bird's-eye view) and ``self.frame``
-        (view + HUD panel, what the window shows and videos record)."""
+        """Draw the current state: ``self.view_image`` (bird's-eye view, with the waiting or
+        outcome banner) and ``self.frame`` (view + HUD panel, what the window shows and videos
+        record)."""
         s = self.env.get_state()[0]
         t = int(s["step_count"]) * self.env.config.dt
         kwargs: dict[str, Any] = {"size_px": self.view.size_px}
         if self.view.follow:
             kwargs["view_half_extent"] = self.view.half_extent
         else:
-            a, b = self._start["pose"][0, :2], self._start["goal"][0, :2]
-            half = 0.5 * float((b - a).norm()) + self.view.margin
-            kwargs.update(center=0.5 * (a + b), view_half_extent=max(self.view.half_extent, half))
+            kwargs.update(self._camera)
         caption = f"t {t:4.1f} s  v {float(s['speed']):4.1f} m/s"
         if self.outcome:
             caption += f"  {self.outcome}"
@@ -255,6 +308,15 @@ class Runner:
             hud_lines=[caption],
             **kwargs,
         )
+        if self.waiting:
+            self.view_image = with_banner(
+                self.view_image, "press W to drive", _NOTE, "the clock starts with the first key"
+            )
+        elif self.outcome:
+            color = next((c for _, name, c in _OUTCOMES if name == self.outcome), COLORS["hud"])
+            hint = f"return {self.episode_return:+.2f} after {t:.1f} s"
+            hint += f"   {self.done_hint}" if self.done_hint else ""
+            self.view_image = with_banner(self.view_image, self.outcome, color, hint)
         self.frame = with_panel(self.view_image, self.hud(s), self.view.panel_px)
         self.frame_id += 1
 
@@ -262,9 +324,9 @@ class Runner:
         """HUD and key-help lines for the panel, from the truck's state ``s``."""
         cfg = self.env.config
         tol_pos, tol_ang = (float(x[0]) for x in self.env.tolerances())
-        status = "PAUSED" if self.paused else ""
+        status = "WAITING" if self.waiting else "PAUSED" if self.paused else ""
         lines: list[Line] = [
-            (f"mode {self.mode.upper()}  {status}", _NOTE if self.paused else COLORS["hud"]),
+            (f"mode {self.mode.upper()}  {status}", _NOTE if status else COLORS["hud"]),
             f"control {cfg.control.longitudinal} / {cfg.control.lateral}",
             f"step {int(s['step_count'])}/{cfg.max_steps}   scenes {self.episodes_done}",
             f"speed {float(s['speed']):6.2f} m/s  acc {float(s['accel']):+5.2f}",
@@ -288,9 +350,12 @@ class Runner:
         if self.last_action is not None:
             a = self.last_action.reshape(-1).tolist()
             lines.append(f" action {a[0]:+.2f} {a[1]:+.2f}")
+        else:  # same line count at step 0: the panel does not jump at the first step
+            lines.append(" action   --    --")
         color = next((c for _, name, c in _OUTCOMES if name == self.outcome), COLORS["hud"])
         lines += [(f"outcome {self.outcome or 'driving'}", color), ""]
-        lines += [f"{k}\t{v}" for k, v in KEY_HELP]
+        if self.show_keys:
+            lines += [f"{k}\t{v}" for k, v in key_help("policy" in self.sources)]
         return lines
 
 
@@ -334,16 +399,28 @@ def run_loop(
     applies pressed commands, advances one step, shows the frame in ``window`` (real time at
     ``fps``; headless runs as fast as it can) and hands every new frame to each of ``sinks``.
 
+    When ``inputs`` is the window itself (a person at the keyboard), keyboard episodes wait for
+    the first drive key (:attr:`Runner.waiting`) and a finished episode stays on screen, with its
+    outcome banner, until a key is pressed or ``done_hold_s`` has passed.
+
     Args:
         max_frames: stop after this many distinct frames (the first, reset frame counts).
         episodes: stop when this many episodes have ended (``None``: until quit or input ends).
         on_done: after an episode: "new" scene, the "same" scene again, or "wait" for R/N
             (headless treats "wait" as "new").
-        done_hold_s: [s] how long the window shows a finished episode before "new"/"same".
+        done_hold_s: [s] how long the window shows a finished episode before "new"/"same"
+            (a key press moves on sooner).
     """
     result = LoopResult()
     last_id = None
     ended_at: float | None = None
+    if window is not None and inputs is window:
+        runner.done_hint = {
+            "new": "any key: next scene",
+            "same": "any key: again",
+            "wait": "R: again   N: new scene",
+        }.get(on_done, "")
+        runner.set_wait_for_key(True)
 
     def emit() -> None:
         nonlocal last_id
@@ -378,8 +455,9 @@ def run_loop(
             break
         if runner.ended and (on_done != "wait" or window is None):
             now = time.monotonic()
+            key_after_end = ended_at is not None and bool(key.pressed)
             ended_at = now if ended_at is None else ended_at
-            if window is None or now - ended_at >= done_hold_s:
+            if window is None or key_after_end or now - ended_at >= done_hold_s:
                 if on_done == "same":
                     runner.restart()
                 else:

@@ -197,7 +197,7 @@ def train(tc: TrainConfig, run_dir: Path, state: dict | None = None) -> Counters
             pbar.update(frames)
             pbar.set_postfix(fps=f"{timing['perf/fps']:.0f}", diff=curriculum.difficulty,
                              ema=f"{curriculum.ema:.2f}", refresh=False)  # fmt: skip
-            if video_ok and counters.iteration % tc.log.video_interval == 0:
+            if video_ok and logger.video_due(counters.iteration, tc.log.video_interval):
                 video_ok = logger.rollout_video(
                     ac.actor, tc.env, curriculum.difficulty, tc.seed, tc.log.video_steps,
                     tc.device, counters.iteration, counters.frames, tc.log.video_fps,

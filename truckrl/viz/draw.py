@@ -271,9 +271,15 @@ def draw_scene(
             _poly(img, corners, COLORS[name], fill=COLORS[f"{name}_fill"], thickness=2)
 
     for i, text in enumerate(hud_lines or ()):
-        org = (8, 18 + 18 * i)
-        cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, COLORS["hud"], 1, cv2.LINE_AA)
+        x, y = 8, 18 + 18 * i
+        # black outline: the text shifted by one pixel each way (a thicker stroke would also
+        # advance each glyph further, so the outline would drift right of the text)
+        for dx, dy in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, 1), (-1, 1), (1, -1)):
+            org = (x + dx, y + dy)
+            cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.putText(
+            img, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, COLORS["hud"], 1, cv2.LINE_AA
+        )
     return img
 
 

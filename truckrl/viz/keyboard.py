@@ -93,6 +93,11 @@ KEY_HELP: tuple[tuple[str, str], ...] = (
 )
 
 
+def key_help(with_policy: bool) -> tuple[tuple[str, str], ...]:
+    """:data:`KEY_HELP` without the M line when there is no policy to switch to."""
+    return tuple(row for row in KEY_HELP if with_policy or row[0] != "M")
+
+
 def command_for(key: str) -> Command | None:
     """The command bound to key name ``key`` (case-insensitive), or ``None``."""
     return COMMAND_KEYS.get(key.lower())

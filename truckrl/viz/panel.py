@@ -42,3 +42,35 @@ def with_panel(view: np.ndarray, lines: Sequence[Line], width: int) -> np.ndarra
     if width <= 0:
         return view
     return np.concatenate((view, text_panel(lines, width, view.shape[0])), axis=1)
+
+
+def with_banner(
+    view: np.ndarray,
+    title: str,
+    color: tuple[int, int, int] = COLORS["hud"],
+    subtitle: str = "",
+) -> np.ndarray:
+    """A copy of ``view`` with a banner near the top: ``title`` large in ``color``, ``subtitle``
+    below, centred.
+
+    The banner is a darkened band across the image, below the caption line (the truck usually
+    sits near the centre of the view and stays visible); its text scales with the image width.
+    """
+    img = view.copy()
+    h, w = img.shape[:2]
+    scale = max(0.5, w / 640.0)
+    font = cv2.FONT_HERSHEY_DUPLEX
+    (tw, th), _ = cv2.getTextSize(title, font, 1.3 * scale, max(1, round(2 * scale)))
+    (sw, sh), _ = cv2.getTextSize(subtitle, font, 0.6 * scale, 1) if subtitle else ((0, 0), 0)
+    gap = round(14 * scale)
+    band = th + (sh + gap if subtitle else 0) + 2 * gap
+    top = min(max(28, h // 16), max(0, h - band))
+    region = img[top : top + band]
+    region[:] = (region.astype(np.uint16) * 3 // 10).astype(np.uint8)  # darken to 30 %
+    y = top + gap + th
+    org = (max(0, (w - tw) // 2), y)
+    cv2.putText(img, title, org, font, 1.3 * scale, color, max(1, round(2 * scale)), cv2.LINE_AA)
+    if subtitle:
+        org = (max(0, (w - sw) // 2), y + gap + sh)
+        cv2.putText(img, subtitle, org, font, 0.6 * scale, COLORS["hud"], 1, cv2.LINE_AA)
+    return img

@@ -1,0 +1,98 @@
+"""``python -m truckrl.export``: the exported model computes the PyTorch actor's mean action."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from tests.conftest import run_cli
+from truckrl.env import TruckEnv
+from truckrl.export import CARD_KEY, ExportConfig, export, observation_table
+from truckrl.sim.validation import ConfigError
+
+
+def random_inputs(n: int, num_obs: int, num_beams: int, seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    obs = torch.randn(n, num_obs, generator=g) * 2.0
+    lidar = torch.rand(n, num_beams, generator=g)
+    return obs, lidar
+
+
+def actor_mean(ac, obs, lidar) -> torch.Tensor:
+    """The PyTorch actor's action under deterministic exploration (what evaluation plays)."""
+    from tensordict import TensorDict
+
+    td = TensorDict({"observation": obs, "lidar": lidar}, batch_size=[len(obs)])
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        return ac.actor(td)["action"]
+
+
+def test_torchscript_matches_the_actor(tiny_checkpoint, tmp_path):
+    run, ac, tc = tiny_checkpoint
+    out = export(
+        ExportConfig(checkpoint=str(run), format="torchscript", out=str(tmp_path / "p.pt"))
+    )
+    extra = {f"{CARD_KEY}.json": ""}
+    model = torch.jit.load(str(out), _extra_files=extra)
+    for n in (1, 7):  # the batch size is free
+        obs, lidar = random_inputs(n, 26, tc.env.lidar.num_beams, seed=n)
+        got = model(obs, lidar)
+        torch.testing.assert_close(got, actor_mean(ac, obs, lidar), atol=1e-5, rtol=0)
+    card = json.loads(extra[f"{CARD_KEY}.json"])
+    assert card["inputs"]["observation"]["shape"] == ["batch", 26]
+    assert card["inputs"]["lidar"]["shape"] == ["batch", tc.env.lidar.num_beams]
+    assert "not applied" in card["output"]["action"]["clamp"]
+
+
+def test_onnx_matches_the_actor(tiny_checkpoint, tmp_path):
+    pytest.importorskip("onnx")
+    pytest.importorskip("onnxscript")
+    ort = pytest.importorskip("onnxruntime")
+    run, ac, tc = tiny_checkpoint
+    out = export(ExportConfig(checkpoint=str(run), format="onnx", out=str(tmp_path / "p.onnx")))
+    session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    assert [i.name for i in session.get_inputs()] == ["observation", "lidar"]
+    for n in (1, 5, 64):
+        obs, lidar = random_inputs(n, 26, tc.env.lidar.num_beams, seed=n)
+        (got,) = session.run(["action"], {"observation": obs.numpy(), "lidar": lidar.numpy()})
+        np.testing.assert_allclose(got, actor_mean(ac, obs, lidar).numpy(), atol=1e-5, rtol=0)
+    card = json.loads(session.get_modelmeta().custom_metadata_map[CARD_KEY])
+    table = card["inputs"]["observation"]["table"]
+    assert [row["index"] for row in table] == list(range(26))
+    assert (
+        table[0]["meaning"].startswith("goal rear axle x") and table[0]["normalisation"] == "/ 50 m"
+    )
+    assert table[14]["meaning"] == "wheelbase"
+    # the last two: limits of the checkpoint's control mode (accel / steering rate by default)
+    assert table[24]["meaning"].startswith("max accel") and table[25]["meaning"].startswith(
+        "max steer rate"
+    )
+    assert len(card["inputs"]["lidar"]["beam_angles_deg"]) == tc.env.lidar.num_beams
+
+
+def test_observation_table_matches_the_env():
+    env = TruckEnv(num_envs=1)
+    assert len(observation_table(env.config)) == env.observation_spec["observation"].shape[-1]
+
+
+def test_config_errors():
+    with pytest.raises(ConfigError, match="checkpoint is required"):
+        ExportConfig()
+    with pytest.raises(ConfigError, match="format"):
+        ExportConfig(checkpoint="x", format="tflite")
+
+
+@pytest.mark.e2e
+def test_cli_writes_next_to_the_run_and_bad_checkpoint_is_exit_2(tiny_checkpoint, tmp_path):
+    run, _, _ = tiny_checkpoint
+    proc = run_cli("export", f"checkpoint={run}", "format=torchscript", f"hydra.run.dir={tmp_path}")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert (run / "export" / "policy.pt").is_file()
+    proc = run_cli("export", f"checkpoint={tmp_path / 'none'}", f"hydra.run.dir={tmp_path}")
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:") and "not found" in lines[0]
