@@ -71,6 +71,8 @@ def seed_everything(seed: int) -> None:
 def git_revision() -> dict[str, str | bool]:
     """The source's git commit and whether the work tree had changes (``{}`` outside git)."""
     root = Path(__file__).resolve().parent.parent
+    if not (root / ".git").exists():  # an installed copy: not this source tree's repository
+        return {}
 
     def git(*args: str) -> str:
         return subprocess.run(

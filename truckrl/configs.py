@@ -1,7 +1,7 @@
 """Top-level configs of the entry points and their registration as Hydra structured configs.
 
 Every default lives in a dataclass field (:func:`truckrl.sim.validation.param`: default, range,
-unit, meaning); YAML files under ``conf/`` hold only presets that differ from them (``ppo/fast``,
+unit, meaning); YAML files under ``truckrl/conf/`` hold only presets that differ from them (``ppo/fast``,
 ``experiment/*``, ``control/*``, ``curriculum/none``, ``launch/*``). ``python -m truckrl.configs
 [PREFIX]`` prints every field as a table (what the README's configuration section points to).
 
@@ -50,7 +50,11 @@ class LogConfig:
 
     interval: int = param(1, lo=1, hi=1e9, unit="iterations", doc="between scalar writes")
     video_interval: int = param(
-        50, lo=0, hi=1e9, unit="iterations", doc="between rollout videos (0: never)"
+        50,
+        lo=0,
+        hi=1e9,
+        unit="iterations",
+        doc="at most this many iterations between videos (also every 5 min; 0: never)",
     )
     video_steps: int = param(200, lo=1, hi=100_000, unit="frames", doc="max frames per video")
     video_fps: float = param(10.0, lo=0.0, hi=1000.0, lo_open=True, unit="1/s", doc="video rate")
@@ -173,7 +177,9 @@ class PlayConfig:
     max_frames: int | None = param(None, lo=1, hi=1e9, doc="stop after this many frames")
     episodes: int | None = param(None, lo=1, hi=1e9, doc="stop after this many episodes")
     on_done: str = param("new", choices=ON_DONE, doc="after an episode: new | same | wait")
-    done_hold_s: float = param(1.0, lo=0.0, hi=3600.0, unit="s", doc="show a finished episode")
+    done_hold_s: float = param(
+        5.0, lo=0.0, hi=3600.0, unit="s", doc="show a finished episode (a key moves on sooner)"
+    )
     env: EnvConfig = field(default_factory=EnvConfig)
     view: ViewConfig = field(default_factory=ViewConfig)
     keyboard: KeyboardConfig = field(default_factory=KeyboardConfig)

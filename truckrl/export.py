@@ -71,7 +71,7 @@ class ExportConfig:
 
 
 def register_schema() -> None:
-    """Register :class:`ExportConfig` as ``export_schema`` (``conf/export.yaml`` extends it)."""
+    """Register :class:`ExportConfig` as ``export_schema`` (``truckrl/conf/export.yaml`` extends it)."""
     from hydra.core.config_store import ConfigStore
 
     ConfigStore.instance().store(name="export_schema", node=structured(ExportConfig))

@@ -4,7 +4,7 @@ The runner keeps an exponential moving average (EMA) of episode success over all
 Every finished episode updates it once, in time order: ``ema <- a * ema + (1 - a) * success``
 (paper: ``a = 0.995``). As soon as the EMA exceeds the threshold (paper: 0.70) the difficulty rises
 by a fixed step (paper: 0.5). The environment turns difficulty into tolerances,
-``30 m * 2**-difficulty`` and ``60 deg * 2**-difficulty`` (``conf/env/default.yaml: tolerance``).
+``30 m * 2**-difficulty`` and ``60 deg * 2**-difficulty`` (``env.tolerance.*``).
 
 After a promotion the EMA restarts from ``ema_init`` (default 0) and the remaining outcomes of the
 same batch are dropped: each promotion must then be earned with evidence gathered entirely at the
@@ -14,7 +14,7 @@ was judged at another difficulty (the env reports ``"difficulty"`` per step; an 
 running during a promotion finishes under the new tolerances only if it ends after it) are also
 ignored.
 
-Mode ``fixed`` (``conf/curriculum/none.yaml``) never changes the difficulty.
+Mode ``fixed`` (preset ``curriculum=none``) never changes the difficulty.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from truckrl.sim.validation import ConfigError, param, validate
 
 @dataclass(frozen=True)
 class CurriculumConfig:
-    """Curriculum settings (``conf/curriculum/*.yaml``)."""
+    """Curriculum settings (``curriculum.*``; presets ``curriculum=paper|none``)."""
 
     mode: str = param(
         "ema", choices=("ema", "fixed"), unit="-", doc="ema (the paper's promotion rule) or fixed"

@@ -1,6 +1,6 @@
 """The paper's two-branch actor-critic (section "Neural network"), as TorchRL modules.
 
-Layout (``R`` LiDAR beams, defaults in ``conf/model/two_branch.yaml``)::
+Layout (``R`` LiDAR beams, defaults in :class:`ModelConfig`)::
 
     "observation" [*B, 26] --MLP 26->128->64 (ELU)-----------------+
                                                                     +-> concat -> Linear 64
@@ -41,7 +41,7 @@ HIDDEN_KEY = "hidden"
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """Sizes of the two-branch network (``conf/model/two_branch.yaml``)."""
+    """Sizes of the two-branch network (``model.*``; the defaults are the paper's)."""
 
     numeric_hidden: tuple[int, ...] = param(
         (128, 64), lo=1, hi=1e6, unit="-", doc="widths of the numeric MLP layers", source="paper"

@@ -23,7 +23,7 @@ from truckrl.sim.validation import ConfigError, check_range, param, validate
 
 @dataclass(frozen=True)
 class PPOConfig:
-    """PPO hyper-parameters (``conf/ppo/*.yaml``; ``paper`` holds the paper's numbers).
+    """PPO hyper-parameters (``ppo.*``; the defaults are the paper's numbers, ``ppo=fast`` a preset).
 
     With the adaptive schedule, ``lr`` must lie in ``[lr_min, lr_max]``; ``num_minibatches`` must
     divide the batch size (:meth:`check_batch`).

@@ -107,7 +107,7 @@ def commanded(longitudinal: str, lateral: str) -> tuple[tuple[str, str], tuple[s
 
 @dataclass
 class ControlConfig:
-    """Which quantity each action component commands (``conf/control/<long>_<lat>.yaml``)."""
+    """Which quantity each action component commands (presets ``control=<long>_<lat>``, ``truckrl/conf/control/``)."""
 
     longitudinal: str = param(
         "accel",
