@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import sys
 import time
 
 import torch
@@ -28,21 +29,68 @@ TARGET_RATIO_VS_PAPER = 30.0  # best config >= 30x the paper layout in the same 
 PAPER_WORKERS = 24  # paper: 24 single-truck worker processes
 
 
+QUICK = {"envs": [1, 256], "parallel_envs": [], "steps": 10, "warmup": 2, "compile": "off"}
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--envs", type=int, nargs="+", default=[1, 24, 256, 1024, 4096])
-    parser.add_argument("--workers", type=int, default=2, help="W of the ParallelEnv rows")
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument(
-        "--parallel-envs", type=int, nargs="+", default=[1024, 4096], help="total N, ParallelEnv"
-    )
+        "--quick", action="store_true",
+        help="a short run (under ~15 s): eager only, N = 1 and 256, no ParallelEnv or paper rows",
+    )  # fmt: skip
+    parser.add_argument(
+        "--envs", type=int, nargs="+", default=[1, 24, 256, 1024, 4096],
+        help="trucks N of the batched TruckEnv rows (default: 1 24 256 1024 4096)",
+    )  # fmt: skip
+    parser.add_argument("--workers", type=int, default=2, help="W of the ParallelEnv rows (>= 1)")
+    parser.add_argument(
+        "--parallel-envs", type=int, nargs="*", default=[1024, 4096],
+        help="total trucks of the ParallelEnv rows, split over --workers (none: skip those rows)",
+    )  # fmt: skip
     parser.add_argument("--steps", type=int, default=50, help="timed steps per measurement")
-    parser.add_argument("--warmup", type=int, default=5, help="untimed steps first")
-    parser.add_argument("--compile", choices=["both", "on", "off"], default="both")
-    parser.add_argument("--no-paper", action="store_true", help="skip the 24-process layout")
-    parser.add_argument("--collector", action="store_true", help="also Collector + policy")
-    parser.add_argument("--device", default="cpu")
+    parser.add_argument(
+        "--warmup", type=int, default=5, help="untimed steps first (absorb compile)"
+    )
+    parser.add_argument(
+        "--compile", choices=["both", "on", "off"], default="both",
+        help="eager (off), torch.compile'd (on) or both rows",
+    )  # fmt: skip
+    parser.add_argument("--no-paper", action="store_true", help="skip the 24-process paper layout")
+    parser.add_argument(
+        "--collector", action="store_true", help="also Collector frames/s with the real policy"
+    )
+    parser.add_argument("--device", default="cpu", help="torch device of the batched rows")
     parser.add_argument("--threads", type=int, help="torch threads in the main process")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default="outputs/bench")
+    parser.add_argument("--seed", type=int, default=0, help="scene seed")
+    parser.add_argument("--out", default="outputs/bench", help="folder for the JSON record")
+
+
+def check_args(args: argparse.Namespace) -> None:
+    """Apply ``--quick`` and reject bad values with one line (SystemExit 2) before any work."""
+    if args.quick:
+        for k, v in QUICK.items():
+            setattr(args, k, v)
+        args.no_paper = True
+    bad = []
+    if any(n < 1 for n in args.envs):
+        bad.append(f"--envs {args.envs}: every N must be >= 1")
+    if args.workers < 1:
+        bad.append(f"--workers {args.workers}: must be >= 1")
+    if any(n < args.workers for n in args.parallel_envs):
+        bad.append(f"--parallel-envs {args.parallel_envs}: each must be >= --workers")
+    if args.steps < 1:
+        bad.append(f"--steps {args.steps}: must be >= 1")
+    if args.warmup < 0:
+        bad.append(f"--warmup {args.warmup}: must be >= 0")
+    if args.threads is not None and args.threads < 1:
+        bad.append(f"--threads {args.threads}: must be >= 1")
+    try:
+        torch.device(args.device)
+    except (RuntimeError, TypeError):
+        bad.append(f"--device {args.device!r}: not a torch device")
+    if bad:
+        print(f"error: {bad[0]}", file=sys.stderr)
+        raise SystemExit(2)
 
 
 def _make_env(n: int, compile: bool, device: str, seed: int) -> TruckEnv:
@@ -65,6 +113,8 @@ def steps_per_second(env: EnvBase, steps: int, warmup: int) -> tuple[float, floa
 
 
 def run(args: argparse.Namespace) -> dict:
+    check_args(args)
+    t_start = time.perf_counter()
     if args.threads:
         torch.set_num_threads(args.threads)
     modes = {"both": [False, True], "on": [True], "off": [False]}[args.compile]
@@ -136,8 +186,11 @@ def run(args: argparse.Namespace) -> dict:
         f"compile={best['compile']}: {best['steps/s']:,.0f} steps/s"
         + (f" = {summary['best_x_paper']:.1f}x the paper layout" if paper_sps else "")
     )
+    summary["wall_s"] = time.perf_counter() - t_start
+    print(f"bench env took {summary['wall_s']:.1f} s" + (" (--quick)" if args.quick else ""))
+    args_json = {k: v for k, v in vars(args).items() if not k.startswith("_")}
     write_json(
-        "env", {"rows": rows, "summary": summary, "table": table, "args": vars(args)}, args.out
+        "env", {"rows": rows, "summary": summary, "table": table, "args": args_json}, args.out
     )
     return summary
 

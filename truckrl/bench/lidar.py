@@ -242,11 +242,17 @@ def run(args: argparse.Namespace) -> dict:
         )
     sweep_fit = next(s for s in scaling if s["impl"] == "sweep")
     if "exp_R_plus_E" in sweep_fit:
+        d = sweep_fit["exp_R_plus_E"]
         targets.append(
             {
-                "target": "sweep near-linear in R + E (exponent ~1)",
-                "measured": sweep_fit["exp_R_plus_E"],
-                "met": sweep_fit["exp_R_plus_E"] <= 1.2,
+                # the paper claims O(R + E): an exponent of at most ~1 in R + E meets the claim;
+                # well below 1 means per-scan overhead dominates at these sizes, not a faster law
+                "target": "sweep cost near-linear in R + E or better (fitted exponent <= 1.2)",
+                "measured": d,
+                "met": d <= 1.2,
+                "reading": "near-linear"
+                if d >= 0.8
+                else "sub-linear: fixed per-scan cost dominates",
             }
         )
     print_table("Targets", targets)
