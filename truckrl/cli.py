@@ -22,7 +22,6 @@ import functools
 import shutil
 import subprocess
 import sys
-import time
 import typing
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -32,7 +31,8 @@ CONFIG_PATH = str(Path(__file__).resolve().parent.parent / "conf")
 
 T = TypeVar("T")
 
-_STARTED = time.time()  # what Hydra made after this is this process's own
+_BEFORE: dict[Path, set[str]] = {}  # entries of a named run dir before Hydra wrote into it
+_KEEP: dict[Path, Path] = {}  # a named run dir that did not exist -> its nearest existing ancestor
 _FROM_TASK = "_truckrl_from_task"  # marks an exception the task raised (keeps its traceback)
 
 
@@ -88,6 +88,7 @@ def hydra_entry(
                 cls = _schema(schema)
                 if prepare is not None:
                     sys.argv[1:] = prepare(argv)
+                _remember_run_dir(sys.argv[1:])
                 _hydra_main(config_name, cls, fn)()
 
         return main
@@ -146,9 +147,20 @@ def one_line_errors(in_task: bool = False) -> Iterator[None]:
             patched()
 
 
+def _remember_run_dir(argv: list[str]) -> None:
+    """Note what a named ``hydra.run.dir`` held before Hydra writes into it."""
+    for a in argv:
+        if a.lstrip("+").startswith("hydra.run.dir="):
+            d = Path(a.split("=", 1)[1].strip("'\"")).resolve()
+            if d.is_dir():
+                _BEFORE[d] = {p.name for p in d.iterdir()}
+            else:
+                _KEEP[d] = next(p for p in d.parents if p.exists())
+
+
 def remove_fresh_output_dir() -> None:
-    """Delete the job's output dir when this process made it and it holds only Hydra's files
-    (``.hydra/`` and the empty job log): a rejected run leaves no stray dir."""
+    """Undo what Hydra wrote for a rejected job (``.hydra/``, an empty job log, the dir itself if
+    it made it) when nothing else was written: a rejected run leaves no stray dir."""
     from hydra.core.hydra_config import HydraConfig
 
     try:
@@ -156,19 +168,25 @@ def remove_fresh_output_dir() -> None:
         out = Path(hc.runtime.output_dir).resolve()
     except ValueError:  # not under Hydra
         return
-    hydra_dir = out / str(hc.output_subdir or ".hydra")
+    if out == Path.cwd().resolve() or not out.is_dir():
+        return
+    before = _BEFORE.get(out)
+    made = {p.name for p in out.iterdir()} - (before or set())
     log = out / f"{hc.job.name}.log"
-    if not hc.output_subdir or out == Path.cwd().resolve() or not hydra_dir.is_dir():
+    if made - {str(hc.output_subdir), log.name}:
+        return  # the job wrote something of its own: keep it
+    if log.name in made and log.stat().st_size > 0:
         return
-    if hydra_dir.stat().st_mtime < _STARTED - 1.0:
-        return
-    if {p.name for p in out.iterdir()} - {hydra_dir.name, log.name}:
-        return
-    if log.exists() and log.stat().st_size > 0:
-        return
-    shutil.rmtree(out, ignore_errors=True)
-    with contextlib.suppress(OSError):
-        out.parent.rmdir()  # outputs/DATE when this was its only run
+    for name in made:
+        target = out / name
+        shutil.rmtree(target) if target.is_dir() else target.unlink()
+    if before is None:  # Hydra made it, and the folders above it up to what existed
+        keep = _KEEP.get(out, out.parent.parent)  # default: outputs/DATE/TIME -> up to outputs
+        with contextlib.suppress(OSError):
+            for d in (out, *out.parents):
+                if d == keep:
+                    break
+                d.rmdir()
 
 
 def _wrap_run_and_report() -> Callable[[], None] | None:

@@ -60,6 +60,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     from truckrl.task import make_task
 
     cfg_yaml = yaml.safe_dump(asdict(tc), sort_keys=False)
+    source = git_revision()  # once: checkpoints record the commit the session started from
     counters = Counters(**state["counters"]) if state else Counters()
     seed_everything(tc.seed)
     stop = StopSignals().install()  # from here on a signal stops at the next iteration boundary
@@ -102,7 +103,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     logger = RunLogger(run_dir, purge_step=counters.frames + 1 if continued else None)
     if not continued:
         logger.config(cfg_yaml, asdict(tc), hparam_metrics(0.0, 0.0))
-        (run_dir / "source.json").write_text(json.dumps(git_revision()) + "\n")
+        (run_dir / "source.json").write_text(json.dumps(source) + "\n")
         if parent:
             write_parent(run_dir, parent)
     log.info(f"run dir: {run_dir}; batch {tc.collector.frames_per_batch:,} frames/iteration")
@@ -118,7 +119,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
             try:
                 ckpt.save_training_state(p, model=ac.model, ppo=ppo, curriculum=curriculum,
                                  counters=asdict(counters), config_yaml=cfg_yaml, num_obs=num_obs,
-                                 num_beams=num_beams, source=git_revision())  # fmt: skip
+                                 num_beams=num_beams, source=source)  # fmt: skip
             except OSError as e:  # full disk, lost permission: stop with the last good one intact
                 raise ckpt.CheckpointError(f"cannot write checkpoint {p} ({e.strerror or e}); the "
                                       f"last good checkpoint is intact: {stop.last_checkpoint}") from None  # fmt: skip
@@ -208,28 +209,32 @@ def prepare(argv: list[str]) -> list[str]:
     return prepare_argv(argv)
 
 
+def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
+    """Plan the session (run dir, resume or branch; :func:`~truckrl.agent.session.plan_session`)
+    and train; ``tc.resume``'s checkpoint supplies the config but for ``RESUME_OVERRIDES``."""
+    from truckrl.agent.policy import saved_config
+    from truckrl.agent.session import plan_session, resumed_config
+    from truckrl.cli import to_config
+    from truckrl.configs import RESUME_OVERRIDES, TrainConfig
+
+    plan = plan_session(tc.resume, tc.overwrite, job_dir, explicit_dir)
+    if plan.state:
+        current = asdict(tc)
+        saved = saved_config(plan.state)
+        tc = to_config(TrainConfig, resumed_config(saved, current, RESUME_OVERRIDES, log))
+    return train(tc, plan.run_dir, plan.state, plan.parent)
+
+
 @hydra_entry("train", "TrainConfig", prepare=prepare)
 def main(tc: Any, raw: Any) -> None:
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
-    from omegaconf import OmegaConf
 
-    from truckrl.agent.policy import saved_config
-    from truckrl.agent.session import ignore_stop_signals, plan_session, resumed_config
-    from truckrl.cli import to_config
-    from truckrl.configs import RESUME_OVERRIDES, TrainConfig
+    from truckrl.agent.session import ignore_stop_signals
 
     hc = HydraConfig.get()
-    explicit = hc.mode == RunMode.RUN and any(
-        o.startswith("hydra.run.dir=") for o in hc.overrides.hydra
-    )
-    plan = plan_session(tc.resume, tc.overwrite, Path(hc.runtime.output_dir), explicit)
-    if plan.state:
-        current = OmegaConf.to_container(raw, resolve=True)
-        current.pop("hydra", None)
-        saved = saved_config(plan.state)
-        tc = to_config(TrainConfig, resumed_config(saved, current, RESUME_OVERRIDES, log))
-    train(tc, plan.run_dir, plan.state, plan.parent)
+    named = any(o.startswith("hydra.run.dir=") for o in hc.overrides.hydra)
+    run(tc, Path(hc.runtime.output_dir), explicit_dir=hc.mode == RunMode.RUN and named)
     ignore_stop_signals()  # the run is over: a late Ctrl-C must not turn the exit into a traceback
 
 

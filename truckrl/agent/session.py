@@ -255,12 +255,20 @@ class Counters:
 
 def resumed_config(saved: dict, current: dict, keep: tuple[str, ...], log: Any) -> dict:
     """The checkpoint's config with the keys ``keep`` taken from ``current`` (logs the others)."""
+    current = _plain(current)
     ignored = sorted(
         k for k in set(current) | set(saved) if k not in keep and current.get(k) != saved.get(k)
     )
     if ignored:
         log.info(f"resume: keeping the checkpoint's {', '.join(ignored)} (command line differs)")
     return {**saved, **{k: current[k] for k in keep if k in current}}
+
+
+def _plain(x: Any) -> Any:
+    """Tuples as lists, recursively (a config as its saved YAML reads back)."""
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    return [_plain(v) for v in x] if isinstance(x, list | tuple) else x
 
 
 @dataclass
