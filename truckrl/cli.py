@@ -65,7 +65,7 @@ def help_text(config_name: str) -> str:
 def hydra_entry(
     config_name: str,
     schema: type | str,
-    prepare: Callable[[list[str]], list[str]] | None = None,
+    prepare: Callable[[list[str]], list[str]] | str | None = None,
 ) -> Callable:
     """Decorate ``fn(cfg: schema, raw: DictConfig)`` into a Hydra main with the shared handling.
 
@@ -74,7 +74,7 @@ def hydra_entry(
         schema: the config dataclass, or its name in :mod:`truckrl.configs` (imported only once
             ``--help`` is ruled out).
         prepare: optional check/rewrite of the command-line arguments before Hydra runs (may
-            raise ``ConfigError`` / ``CheckpointError``).
+            raise ``ConfigError`` / ``CheckpointError``), or its ``"module:function"`` name.
     """
 
     def decorate(fn: Callable[[Any, Any], Any]) -> Callable[[], None]:
@@ -87,13 +87,22 @@ def hydra_entry(
             with one_line_errors():
                 cls = _schema(schema)
                 if prepare is not None:
-                    sys.argv[1:] = prepare(argv)
+                    sys.argv[1:] = _function(prepare)(argv)
                 _remember_run_dir(sys.argv[1:])
                 _hydra_main(config_name, cls, fn)()
 
         return main
 
     return decorate
+
+
+def _function(f: Callable | str) -> Callable:
+    if isinstance(f, str):
+        import importlib
+
+        module, _, name = f.partition(":")
+        return getattr(importlib.import_module(module), name)
+    return f
 
 
 def _schema(schema: type | str) -> type:

@@ -1,10 +1,8 @@
 """``python -m truckrl.train``: PPO on TruckEnv with the success curriculum (the paper's setup).
 
     python -m truckrl.train                                # experiment=fast (CPU), paper curriculum
-    python -m truckrl.train experiment=paper max_minutes=240          # the paper's PPO numbers
     python -m truckrl.train resume=outputs/2025-01-01/12-00-00        # continue a stopped run
-    python -m truckrl.train -m ppo.lr=1e-4,3e-4                       # sweep (outputs/multirun/...)
-    python -m truckrl.train --cfg job                                 # print the composed config
+    python -m truckrl.train --help                                    # options and examples
 
 Each iteration collects ``collector.workers x num_envs x steps_per_env`` frames, feeds finished
 episodes to the curriculum in start order (:mod:`truckrl.agent.cohorts`; a promotion reaches
@@ -36,8 +34,10 @@ from truckrl.cli import hydra_entry
 log = logging.getLogger("truckrl.train")
 
 
-def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None = None) -> Any:
+def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None = None,
+          stop: Any = None) -> Any:  # fmt: skip
     """Run (or, with a loaded checkpoint ``state``, resume) one training job; return its counters.
+    ``stop``: installed :class:`~truckrl.agent.session.StopSignals` (:func:`run` installs them).
 
     One recipe, top to bottom like TorchRL's ``ppo_mujoco.py`` (create env, models, PPO,
     collector, logger; then the loop): splitting it would hide the order the parts depend on.
@@ -63,7 +63,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     source = git_revision()  # once: checkpoints record the commit the session started from
     counters = Counters(**state["counters"]) if state else Counters()
     seed_everything(tc.seed)
-    stop = StopSignals().install()  # from here on a signal stops at the next iteration boundary
+    stop = stop or StopSignals()
 
     # Create environment (workers ignore Ctrl-C: this process stops and closes them)
     c = tc.collector
@@ -80,7 +80,13 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     curriculum = Curriculum(tc.curriculum)
     if state:
         per_iteration = tc.ppo.num_epochs * tc.ppo.num_minibatches  # optimizer steps
-        ckpt.restore_training(state, ac.model, ppo, curriculum, num_obs, num_beams, per_iteration)
+        try:
+            ckpt.restore_training(
+                state, ac.model, ppo, curriculum, num_obs, num_beams, per_iteration
+            )
+        except ckpt.CheckpointError:
+            env.close()  # the workers, before the one-line error
+            raise
         ckpt.restore_rng(state["rng"])  # after the model is built: its init draws from the RNG
         stop.last_checkpoint = str(state["path"])
         log.info(f"resumed {state['path']} at iteration {counters.iteration}, "
@@ -198,34 +204,26 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
                            curriculum.difficulty):  # fmt: skip
         log.info(line)
     stop.hand_over()  # under submitit: requeue the job (it resumes by itself)
-    stop.restore()
     return counters
-
-
-def prepare(argv: list[str]) -> list[str]:
-    """Run-dir checks before Hydra makes or writes one (:func:`~truckrl.agent.session.prepare_argv`)."""
-    from truckrl.agent.session import prepare_argv
-
-    return prepare_argv(argv)
 
 
 def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
     """Plan the session (run dir, resume or branch; :func:`~truckrl.agent.session.plan_session`)
     and train; ``tc.resume``'s checkpoint supplies the config but for ``RESUME_OVERRIDES``."""
-    from truckrl.agent.policy import saved_config
-    from truckrl.agent.session import plan_session, resumed_config
-    from truckrl.cli import to_config
+    from truckrl.agent.session import StopSignals, merged_config, plan_session
     from truckrl.configs import RESUME_OVERRIDES, TrainConfig
 
     plan = plan_session(tc.resume, tc.overwrite, job_dir, explicit_dir)
     if plan.state:
-        current = asdict(tc)
-        saved = saved_config(plan.state)
-        tc = to_config(TrainConfig, resumed_config(saved, current, RESUME_OVERRIDES, log))
-    return train(tc, plan.run_dir, plan.state, plan.parent)
+        tc = merged_config(plan.state, asdict(tc), TrainConfig, RESUME_OVERRIDES, log)
+    stop = StopSignals().install()  # from here on a signal stops at the next iteration boundary
+    try:
+        return train(tc, plan.run_dir, plan.state, plan.parent, stop)
+    finally:
+        stop.restore()
 
 
-@hydra_entry("train", "TrainConfig", prepare=prepare)
+@hydra_entry("train", "TrainConfig", prepare="truckrl.agent.session:prepare_argv")
 def main(tc: Any, raw: Any) -> None:
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode

@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from truckrl.agent.checkpoint import CHECKPOINT_DIR, LAST_NAME, TMP_SUFFIX, CheckpointError
-from truckrl.sim.validation import ConfigError
+from truckrl.sim.validation import ConfigError, build
 
 #: Signals that stop training at the next iteration boundary.
 STOP_SIGNALS = tuple(
@@ -205,8 +205,9 @@ def reuse_refusal(run_dir: Path) -> ConfigError:
     """The error for starting a new run where a checkpoint already is."""
     return ConfigError(
         f"run dir {run_dir} already holds a checkpoint ({CHECKPOINT_DIR}/{LAST_NAME}): continue "
-        f"it with resume={run_dir}, or start a new run in another dir (hydra.run.dir=...) or "
-        "here with overwrite=true (deletes its checkpoints and TensorBoard logs)"
+        f"it with `python -m truckrl.train resume={run_dir}`, or start a new run in another dir "
+        "(hydra.run.dir=...) or here with overwrite=true (deletes its checkpoints and TensorBoard "
+        "logs)"
     )
 
 
@@ -262,6 +263,20 @@ def resumed_config(saved: dict, current: dict, keep: tuple[str, ...], log: Any) 
     if ignored:
         log.info(f"resume: keeping the checkpoint's {', '.join(ignored)} (command line differs)")
     return {**saved, **{k: current[k] for k in keep if k in current}}
+
+
+def merged_config(state: dict, current: dict, schema: type, keep: tuple[str, ...], log: Any) -> Any:
+    """The config a resumed session runs with (:func:`resumed_config`), built as ``schema``.
+
+    Raises:
+        CheckpointError: the checkpoint's part of it is not a valid config.
+    """
+    from truckrl.agent.policy import saved_config
+
+    try:
+        return build(schema, resumed_config(saved_config(state), current, keep, log))
+    except ConfigError as e:
+        raise CheckpointError(f"{state['path']}: its saved config is invalid ({e})") from None
 
 
 def _plain(x: Any) -> Any:
