@@ -32,7 +32,9 @@ CONFIG_PATH = str(Path(__file__).resolve().parent.parent / "conf")
 T = TypeVar("T")
 
 _BEFORE: dict[Path, set[str]] = {}  # entries of a named run dir before Hydra wrote into it
-_KEEP: dict[Path, Path] = {}  # a named run dir that did not exist -> its nearest existing ancestor
+_KEEP: dict[Path, Path] = {}  # a run dir that did not exist -> its nearest existing ancestor
+_OUTPUTS = "outputs"  # the root of the default run dirs (conf/*.yaml: hydra.run.dir)
+_SCHEMA: list[type] = []  # the running entry's schema: error messages look fields up in it
 _FROM_TASK = "_truckrl_from_task"  # marks an exception the task raised (keeps its traceback)
 
 
@@ -86,6 +88,7 @@ def hydra_entry(
                 sys.exit(0)
             with one_line_errors():
                 cls = _schema(schema)
+                _SCHEMA[:] = [cls]
                 if prepare is not None:
                     sys.argv[1:] = _function(prepare)(argv)
                 _remember_run_dir(sys.argv[1:])
@@ -157,7 +160,10 @@ def one_line_errors(in_task: bool = False) -> Iterator[None]:
 
 
 def _remember_run_dir(argv: list[str]) -> None:
-    """Note what a named ``hydra.run.dir`` held before Hydra writes into it."""
+    """Note what a named ``hydra.run.dir`` held before Hydra writes into it, and whether the root
+    of the default run dirs (``./outputs``) existed."""
+    outputs = (Path.cwd() / _OUTPUTS).resolve()
+    _KEEP[outputs] = outputs if outputs.exists() else outputs.parent
     for a in argv:
         if a.lstrip("+").startswith("hydra.run.dir="):
             d = Path(a.split("=", 1)[1].strip("'\"")).resolve()
@@ -182,20 +188,25 @@ def remove_fresh_output_dir() -> None:
     before = _BEFORE.get(out)
     made = {p.name for p in out.iterdir()} - (before or set())
     log = out / f"{hc.job.name}.log"
-    if made - {str(hc.output_subdir), log.name}:
+    ours = {str(hc.output_subdir), log.name}
+    if any(n not in ours and not _empty_dir(out / n) for n in made):
         return  # the job wrote something of its own: keep it
-    if log.name in made and log.stat().st_size > 0:
-        return
     for name in made:
         target = out / name
         shutil.rmtree(target) if target.is_dir() else target.unlink()
     if before is None:  # Hydra made it, and the folders above it up to what existed
-        keep = _KEEP.get(out, out.parent.parent)  # default: outputs/DATE/TIME -> up to outputs
+        outputs = (Path.cwd() / _OUTPUTS).resolve()
+        default = _KEEP.get(outputs, outputs) if outputs in out.parents else out.parent.parent
+        keep = _KEEP.get(out, default)
         with contextlib.suppress(OSError):
             for d in (out, *out.parents):
                 if d == keep:
                     break
                 d.rmdir()
+
+
+def _empty_dir(p: Path) -> bool:
+    return p.is_dir() and not any(p.iterdir())
 
 
 def _wrap_run_and_report() -> Callable[[], None] | None:
@@ -284,26 +295,28 @@ def describe_field_error(e: Any) -> str:
 
 
 def _known_fields(dotted: str) -> list[str]:
-    hint, _ = field_spec(dotted) if dotted else (None, None)
-    cls = hint if hint is not None else None
-    if not dotted:
-        from truckrl.configs import TrainConfig
-
-        cls = TrainConfig
+    cls = field_spec(dotted)[0] if dotted else _root()
     return [f.name for f in dataclasses.fields(cls)] if dataclasses.is_dataclass(cls) else []
+
+
+def _root() -> type:
+    if _SCHEMA:
+        return _SCHEMA[0]
+    from truckrl.configs import TrainConfig
+
+    return TrainConfig
 
 
 def field_spec(dotted: str, root: type | None = None) -> tuple[Any, Any]:
     """``(type hint, Spec)`` of a dotted field (``env.lidar.num_beams``; list indices dropped),
-    searched from ``root`` (default: the train schema) and every task's config under
+    searched from ``root`` (default: the running entry's schema) and every task's config under
     ``env.task``. ``(None, None)`` when unknown."""
     import re
 
-    from truckrl.configs import TrainConfig
     from truckrl.task import TaskConfig, task_class, task_names
 
     parts = re.sub(r"\[\d+\]", "", dotted).split(".")
-    candidates: list[type] = [root or TrainConfig]
+    candidates: list[type] = [root or _root()]
     for i, part in enumerate(parts):
         found = None
         for cls in candidates:

@@ -116,6 +116,7 @@ def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = 
         raise CheckpointError(f"{p} is not a truckrl checkpoint: {_unsafe_reason(e)}") from None
     except (RuntimeError, EOFError, OSError, ValueError, zipfile.BadZipFile) as e:
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        first = first.split(". ")[0]  # torch adds sentences of advice
         raise CheckpointError(
             f"cannot read checkpoint {p}: not a truckrl checkpoint, truncated or corrupt ({first})"
         ) from None
@@ -330,20 +331,19 @@ def check_optimizer_state(
             f"{p}: the optimizer state is for {len(ids)} parameters, the model has {len(params)}"
         )
     for n, (i, param) in enumerate(zip(ids, params, strict=True)):
-        entry = state.get(i, {})
-        for name, value in entry.items():
+        for name, value in state.get(i, {}).items():
             if name != "step" and torch.is_tensor(value) and value.shape != param.shape:
                 raise CheckpointError(
                     f"{p}: the optimizer state does not fit the model (parameter {n}: "
                     f"{name} {tuple(value.shape)} vs {tuple(param.shape)})"
                 )
-        if steps is not None:
-            took = int(entry["step"]) if "step" in entry else 0
-            if took != steps:
-                raise CheckpointError(
-                    f"{p}: bad counters (the optimizer took {took} steps; iteration x epochs x "
-                    f"minibatches = {steps})"
-                )
+    for i in ids if steps is not None else ():
+        took = int(state[i]["step"]) if "step" in state.get(i, {}) else 0
+        if took != steps:
+            raise CheckpointError(
+                f"{p}: bad counters (the optimizer took {took} steps; iteration x epochs x "
+                f"minibatches = {steps})"
+            )
 
 
 def restore_training(
