@@ -195,3 +195,15 @@ def test_unwritable_play_output_is_one_line(case, tmp_path, capsys, monkeypatch)
     r = run_main(capsys, "play", "headless=true", "max_frames=3", f"{field}={path}")
     assert_one_line_error(r, f"{field}={path}", PLAY_FAULTS[case][1])
     assert sorted(os.listdir(tmp_path)) == (["plain-file"] if "file" in case else [])
+
+
+def test_a_requeued_sweep_job_resumes_its_own_run_dir(tmp_path, capsys, monkeypatch):
+    """What a requeued SLURM job does (conf/launch/slurm.yaml sets resume: auto): the same
+    sweep job, run again in the same job dir, continues its checkpoint."""
+    monkeypatch.chdir(tmp_path)
+    sweep = tmp_path / "sweep"
+    args = ["-m", *TINY, "resume=auto", f"hydra.sweep.dir={sweep}"]
+    assert run_main(capsys, "train", *args, f"total_frames={BATCH}").code == 0
+    assert run_main(capsys, "train", *args, f"total_frames={2 * BATCH}").code == 0
+    assert assert_consistent(sweep / "0")["iteration"] == 2
+    assert "resumed" in (sweep / "0" / "train.log").read_text()
