@@ -22,6 +22,8 @@ from truckrl.agent.checkpoint import load_checkpoint
 from truckrl.cli import to_config
 from truckrl.configs import TrainConfig
 
+SIGNALS = {"SIGINT": signal.SIGINT, "SIGTERM": signal.SIGTERM}
+
 #: TINY_TRAIN with two epochs, so that a PPO update spans several optimizer steps.
 EPOCHS, MINIBATCHES = 2, 2
 TINY = [*TINY_TRAIN, f"ppo.num_epochs={EPOCHS}", f"ppo.num_minibatches={MINIBATCHES}"]
@@ -107,6 +109,7 @@ def run_main(capsys, module: str, *args: str) -> Result:
 
     mod = importlib.import_module(f"truckrl.{module}")
     argv, threads = sys.argv, torch.get_num_threads()  # play sets the thread count
+    handlers = {s: signal.getsignal(s) for s in SIGNALS.values()}  # train ignores them at exit
     sys.argv = [f"truckrl/{module}.py", *args]
     capsys.readouterr()
     code = 0
@@ -117,6 +120,8 @@ def run_main(capsys, module: str, *args: str) -> Result:
     finally:
         sys.argv = argv
         torch.set_num_threads(threads)
+        for s, h in handlers.items():
+            signal.signal(s, h)
         with contextlib.suppress(Exception):
             from hydra.core.global_hydra import GlobalHydra
 
@@ -137,8 +142,6 @@ def assert_one_line_error(r: Result, *fragments: str) -> str:
         assert f in line, (f, line)
     return line
 
-
-SIGNALS = {"SIGINT": signal.SIGINT, "SIGTERM": signal.SIGTERM}
 
 #: Environment of subprocess runs: one torch thread (see conftest.py).
 ENV = {**os.environ, "OMP_NUM_THREADS": "1"}

@@ -1,5 +1,5 @@
-"""Bad inputs through the real entry points (run in-process): every row one line ``error: ...``,
-exit 2, no traceback, nothing silent, no stray run dir.
+"""Bad inputs through the entry points (in-process): every row one line ``error: ...``, exit 2, no
+traceback, nothing silent, no stray run dir.
 
 Checkpoints go through ``train resume=``, ``evaluate checkpoint=`` and ``play checkpoint=``;
 config values through Hydra's composition and the schemas' validation.
@@ -8,6 +8,8 @@ config values through Hydra's composition and the schemas' validation.
 from __future__ import annotations
 
 import copy
+import dataclasses
+import functools
 import os
 import pickle
 from collections.abc import Callable
@@ -17,16 +19,21 @@ import pytest
 import torch
 import yaml
 
+from tests.conftest import compose_config
 from tests.reliability.harness import (
     BATCH,
     TINY,
+    Result,
     assert_one_line_error,
     run_main,
     run_session,
+    tiny_config,
 )
 from truckrl.agent.checkpoint import load_checkpoint
 from truckrl.agent.network import ModelConfig, make_actor_critic
 from truckrl.agent.ppo import PPO, PPOConfig
+from truckrl.cli import one_line_errors
+from truckrl.sim.validation import ConfigError
 
 ENTRIES = ("train", "evaluate", "play")
 
@@ -158,23 +165,69 @@ CHECKPOINTS: dict[str, tuple[Callable[[dict, Path], Path], tuple[str, ...], tupl
 }
 
 ROWS = [(name, entry) for name, (_, entries, _) in CHECKPOINTS.items() for entry in entries]
+
+
+@functools.cache
+def base_config():
+    return tiny_config()
+
+
+def through(entry: str, path: Path, job_dir: Path) -> None:
+    """What ``train resume=`` / ``evaluate checkpoint=`` / ``play checkpoint=`` run with a
+    checkpoint, after Hydra's composition (the table's rows skip it: it costs ~1 s a row; the
+    full command lines are checked below)."""
+    if entry == "train":
+        from truckrl.agent.session import prepare_argv
+        from truckrl.train import run
+
+        prepare_argv([f"resume={path}"])
+        run(dataclasses.replace(base_config(), resume=str(path)), job_dir, explicit_dir=False)
+    elif entry == "evaluate":
+        from truckrl.agent.policy import load_policy
+
+        load_policy(path)
+    else:
+        from truckrl.configs import PlayConfig
+        from truckrl.play import build_runner
+
+        build_runner(PlayConfig(checkpoint=str(path), headless=True))
+
+
+@pytest.mark.parametrize(("name", "entry"), ROWS)
+def test_bad_checkpoint_is_one_line(name, entry, good, tmp_path, capsys):
+    make, _, fragments = CHECKPOINTS[name]
+    path = make(copy.deepcopy({k: v for k, v in good.items() if k != "path"}), tmp_path / "x.pt")
+    before = sorted(os.listdir(tmp_path))
+    code = 0
+    capsys.readouterr()
+    try:
+        with one_line_errors(in_task=True):
+            through(entry, path, tmp_path / "job")
+    except SystemExit as e:
+        code = e.code
+    captured = capsys.readouterr()
+    r = Result(code, captured.out, captured.err)
+    print(f"\n[{name} / {entry}] " + assert_one_line_error(r, *fragments))
+    assert sorted(os.listdir(tmp_path)) in (before, sorted([*before, "job"]))
+    assert not [p for p in (tmp_path / "job").rglob("*") if p.is_file()]  # nothing written
+
+
+@pytest.mark.parametrize("entry", ENTRIES)
+@pytest.mark.parametrize("name", ["yaml text file", "weights do not fit the config"])
+def test_bad_checkpoint_on_the_command_line(name, entry, good, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    make, _, fragments = CHECKPOINTS[name]
+    path = make(copy.deepcopy({k: v for k, v in good.items() if k != "path"}), tmp_path / "x.pt")
+    r = run_main(capsys, entry, *ARGS[entry](path))
+    assert_one_line_error(r, *fragments)
+    assert sorted(os.listdir(tmp_path)) == ["x.pt"]  # no outputs/ or eval files left behind
+
+
 ARGS = {
     "train": lambda c: [*TINY, f"resume={c}"],
     "evaluate": lambda c: [f"checkpoint={c}", "episodes=2"],
     "play": lambda c: [f"checkpoint={c}", "headless=true", "max_frames=2"],
 }
-
-
-@pytest.mark.parametrize(("name", "entry"), ROWS)
-def test_bad_checkpoint_is_one_line(name, entry, good, tmp_path, capsys, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    make, _, fragments = CHECKPOINTS[name]
-    path = make(copy.deepcopy({k: v for k, v in good.items() if k != "path"}), tmp_path / "x.pt")
-    before = sorted(os.listdir(tmp_path))
-    r = run_main(capsys, entry, *ARGS[entry](path))
-    print(f"\n[{name} / {entry}] " + assert_one_line_error(r, *fragments))
-    assert sorted(os.listdir(tmp_path)) == before  # no outputs/ or eval files left behind
-
 
 #: (entry, override, fragments): Hydra's composition errors and the schemas' checks alike.
 CONFIGS = [
@@ -204,11 +257,42 @@ CONFIGS = [
     ("play", "headless=maybe", ("headless", "true or false")),
     ("play", "control=fast", ("control=fast", "accel_rate")),
 ]
+SCHEMAS = {"train": "TrainConfig", "evaluate": "EvaluateConfig", "play": "PlayConfig"}
 
 
 @pytest.mark.parametrize(("entry", "override", "fragments"), CONFIGS)
-def test_bad_config_value_is_one_line(entry, override, fragments, tmp_path, capsys, monkeypatch):
+def test_bad_config_value_is_one_line(entry, override, fragments):
+    """The message the command line prints (composition through Hydra's compose API; the full
+    command line for a few rows below)."""
+    import truckrl.cli as cli
+    import truckrl.configs
+
+    schema = getattr(truckrl.configs, SCHEMAS[entry])
+    cli._SCHEMA[:] = [schema]
+    try:
+        cli.to_config(schema, compose_config(entry, override))
+    except ConfigError as e:
+        line = str(e)
+    except Exception as e:  # Hydra's and OmegaConf's composition errors
+        line = cli.describe_hydra_error(e)
+    else:
+        pytest.fail(f"{override} accepted")
+    finally:
+        cli._SCHEMA.clear()
+    assert line and "\n" not in line, line
+    for f in fragments:
+        assert f in line, (f, line)
+    print(f"\n[{entry} {override}] error: {line}")
+
+
+@pytest.mark.parametrize(
+    ("entry", "override", "fragments"),
+    [row for row in CONFIGS if row[1] in ("env.lidar.num_beams=sixteen", "env.vehicle=default",
+                                          "ppo.num_minibatches=7", "x=(", "episodes=abc",
+                                          "control=fast")],
+)  # fmt: skip
+def test_bad_config_on_the_command_line(entry, override, fragments, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     r = run_main(capsys, entry, override)
-    print(f"\n[{entry} {override}] " + assert_one_line_error(r, *fragments))
+    assert_one_line_error(r, *fragments)
     assert os.listdir(tmp_path) == []  # no outputs/DATE/TIME for a rejected config

@@ -122,8 +122,7 @@ def median_seconds(*args: str, runs: int = 3) -> float:
 
 
 @pytest.mark.e2e
-def test_start_up_time_of_help_and_of_a_config_error():
+def test_start_up_time_of_help():
     help_s = median_seconds("truckrl.train", "--help")
-    error_s = median_seconds("truckrl.train", "env.lidar.num_beams=sixteen", runs=1)
-    print(f"\nstart-up: train --help {help_s:.2f} s, train config error {error_s:.2f} s")
+    print(f"\nstart-up: train --help {help_s:.2f} s (median of 3)")
     assert help_s < 3.0  # no torch: measured 0.1 s
