@@ -34,6 +34,8 @@ T = TypeVar("T")
 _BEFORE: dict[Path, set[str]] = {}  # entries of a named run dir before Hydra wrote into it
 _KEEP: dict[Path, Path] = {}  # a run dir that did not exist -> its nearest existing ancestor
 _OUTPUTS = "outputs"  # the root of the default run dirs (conf/*.yaml: hydra.run.dir)
+_SWEEP_ROOTS: list[tuple[Path, Path]] = []  # (where a sweep dir may appear, what existed above)
+_STARTED = __import__("time").time()
 _SCHEMA: list[type] = []  # the running entry's schema: error messages look fields up in it
 _FROM_TASK = "_truckrl_from_task"  # marks an exception the task raised (keeps its traceback)
 
@@ -164,7 +166,11 @@ def _remember_run_dir(argv: list[str]) -> None:
     of the default run dirs (``./outputs``) existed."""
     outputs = (Path.cwd() / _OUTPUTS).resolve()
     _KEEP[outputs] = outputs if outputs.exists() else outputs.parent
+    _SWEEP_ROOTS[:] = [(outputs / "multirun", _KEEP[outputs])]
     for a in argv:
+        if a.lstrip("+").startswith("hydra.sweep.dir="):
+            d = Path(a.split("=", 1)[1].strip("'\"")).resolve()
+            _SWEEP_ROOTS.append((d, next(p for p in (d, *d.parents) if p.exists())))
         if a.lstrip("+").startswith("hydra.run.dir="):
             d = Path(a.split("=", 1)[1].strip("'\"")).resolve()
             if d.is_dir():
@@ -205,6 +211,23 @@ def remove_fresh_output_dir() -> None:
                 d.rmdir()
 
 
+def _remove_fresh_sweep_dirs() -> None:
+    """Delete sweep dirs this process made that hold only Hydra's ``multirun.yaml`` (a sweep whose
+    overrides were rejected), and the folders above them it made."""
+    for root, keep in _SWEEP_ROOTS:
+        for marker in list(root.rglob("multirun.yaml")) if root.is_dir() else []:
+            d = marker.parent
+            fresh = marker.stat().st_mtime >= _STARTED - 1
+            if not fresh or [p.name for p in d.iterdir()] != [marker.name]:
+                continue
+            marker.unlink()
+            with contextlib.suppress(OSError):
+                for p in (d, *d.parents):
+                    if p == keep:
+                        break
+                    p.rmdir()
+
+
 def _empty_dir(p: Path) -> bool:
     return p.is_dir() and not any(p.iterdir())
 
@@ -224,6 +247,8 @@ def _wrap_run_and_report() -> Callable[[], None] | None:
             message = None if getattr(e, _FROM_TASK, False) else describe_hydra_error(e)
             if message is None:
                 return original(lambda err=e: _reraise(err))
+            with contextlib.suppress(OSError):
+                _remove_fresh_sweep_dirs()
             fail(message)
 
     hydra_utils.run_and_report = run_and_report

@@ -296,3 +296,10 @@ def test_bad_config_on_the_command_line(entry, override, fragments, tmp_path, ca
     r = run_main(capsys, entry, override)
     assert_one_line_error(r, *fragments)
     assert os.listdir(tmp_path) == []  # no outputs/DATE/TIME for a rejected config
+
+
+def test_rejected_sweep_leaves_no_sweep_dir(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    r = run_main(capsys, "train", "-m", "ppo.lr=1e-4,abc")
+    assert_one_line_error(r, "ppo.lr", "a number")
+    assert os.listdir(tmp_path) == []  # not even outputs/multirun/DATE/TIME/multirun.yaml
