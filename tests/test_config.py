@@ -67,3 +67,27 @@ def test_config_table_cli():
     proc = run_cli("configs", "env.vehicle")
     assert proc.returncode == 0, proc.stderr
     assert "env.vehicle.wheelbase" in proc.stdout and "[3.4, 4.2]" in proc.stdout
+
+
+def test_default_run_ends_on_its_own():
+    """`python -m truckrl.train` stops at the paper's goal (difficulty 6) or after 60 minutes."""
+    tc = to_config(TrainConfig, compose_config("train"))
+    assert (tc.stop_difficulty, tc.max_minutes, tc.total_frames) == (6.0, 60.0, None)
+    assert not tc.overwrite and tc.resume is None
+
+
+@pytest.mark.parametrize(
+    ("dotted", "words"),
+    [
+        ("env.lidar.num_beams", "a whole number in [1, 4096]"),
+        ("env.task.scene.road_width", "a [min, max] pair of numbers"),
+        ("ppo.lr", "a number in (0, 1]"),
+        ("log.progress_bar", "true or false"),
+        ("stop_difficulty", ", or null"),
+    ],
+)
+def test_field_descriptions_for_composition_errors(dotted, words):
+    from truckrl.cli import accepted, field_spec
+
+    hint, spec = field_spec(dotted, TrainConfig)
+    assert words in accepted(hint, spec)

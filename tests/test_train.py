@@ -97,8 +97,8 @@ def test_heldout_evaluation_is_logged(run_dir, tmp_path):
     assert not [t for t in defaults.Tags()["scalars"] if t.startswith("eval/")]
 
 
-def test_resume_continues_counters_and_steps(run_dir, tmp_path):
-    proc = train(f"resume={run_dir}", f"total_frames={6 * BATCH}", f"hydra.run.dir={tmp_path}")
+def test_resume_continues_counters_and_steps(run_dir):
+    proc = train(f"resume={run_dir}", f"total_frames={6 * BATCH}")
     assert "resumed" in proc.stdout
     state = load_checkpoint(run_dir / "checkpoints" / "last.pt")
     assert state["counters"]["iteration"] == 6
@@ -144,7 +144,7 @@ def test_sigkill_then_resume_loses_nothing_before_the_checkpoint(tmp_path):
     saved = load_checkpoint(run)  # the atomic write left a readable file
     k = saved["counters"]["iteration"]
     assert saved["counters"]["frames"] == k * BATCH
-    train(f"resume={run}", f"total_frames={(k + 1) * BATCH}", f"hydra.run.dir={tmp_path / 'r'}")
+    train(f"resume={run}", f"total_frames={(k + 1) * BATCH}")
     after = load_checkpoint(run)
     assert after["counters"]["iteration"] == k + 1
     assert after["counters"]["frames"] == (k + 1) * BATCH

@@ -1,68 +1,412 @@
-"""What every Hydra entry point shares: the config path, validation before any work, the
-one-line error with exit code 2, seeding and the run's provenance.
+"""What every Hydra entry point shares: the config path, ``--help`` before any heavy import,
+validation before any work, the one-line error with exit code 2, seeding and the run's provenance.
 
 Usage in an entry point::
 
-    @hydra_entry("train", TrainConfig)
+    @hydra_entry("train", "TrainConfig")        # the schema: a class, or its name in configs
     def main(cfg: TrainConfig, raw: DictConfig) -> None: ...
+
+Errors a user can cause, bad values and unknown fields (whether Hydra finds them while composing
+or the schemas while validating), missing group options, unparsable overrides, unusable
+checkpoints, unwritable output paths, print one line ``error: ...`` naming the dotted field and
+what it accepts, and exit with code 2. ``--help`` prints the entry's template from
+``conf/hydra/help/<name>.yaml`` without loading torch.
 """
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
+import difflib
 import functools
-import random
+import shutil
 import subprocess
 import sys
-from collections.abc import Callable
+import typing
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, TypeVar
-
-import hydra
-import numpy as np
-import torch
-from omegaconf import DictConfig, OmegaConf
-
-from truckrl.agent.checkpoint import CheckpointError
-from truckrl.configs import register
-from truckrl.sim.validation import ConfigError, build
+from typing import Any, NoReturn, TypeVar
 
 CONFIG_PATH = str(Path(__file__).resolve().parent / "conf")  # package data: works installed too
 
 T = TypeVar("T")
 
+_BEFORE: dict[Path, set[str]] = {}  # entries of a named run dir before Hydra wrote into it
+_KEEP: dict[Path, Path] = {}  # a run dir that did not exist -> its nearest existing ancestor
+_OUTPUTS = "outputs"  # the root of the default run dirs (conf/*.yaml: hydra.run.dir)
+_SWEEP_ROOTS: list[tuple[Path, Path]] = []  # (where a sweep dir may appear, what existed above)
+_STARTED = __import__("time").time()
+_SCHEMA: list[type] = []  # the running entry's schema: error messages look fields up in it
+_FROM_TASK = "_truckrl_from_task"  # marks an exception the task raised (keeps its traceback)
 
-def to_config(schema: type[T], cfg: DictConfig | dict) -> T:
+
+def fail(message: str) -> NoReturn:
+    """Print ``error: <message>`` as one line on stderr and exit with code 2."""
+    sys.stdout.flush()
+    print("error: " + " ".join(str(message).split()), file=sys.stderr, flush=True)
+    sys.exit(2)
+
+
+def to_config(schema: type[T], cfg: Any) -> T:
     """The composed Hydra config (or a plain dict) as a validated ``schema`` instance."""
+    from omegaconf import OmegaConf
+
+    from truckrl.sim.validation import build
+
     data = OmegaConf.to_container(cfg, resolve=True) if OmegaConf.is_config(cfg) else dict(cfg)
     data.pop("hydra", None)
     return build(schema, data)
 
 
-def hydra_entry(config_name: str, schema: type[T]) -> Callable:
+def help_text(config_name: str) -> str:
+    """The ``--help`` template of an entry point (``conf/hydra/help/<name>.yaml``)."""
+    import yaml
+
+    path = Path(CONFIG_PATH) / "hydra" / "help" / f"{config_name}.yaml"
+    return yaml.safe_load(path.read_text())["template"].rstrip() + "\n"
+
+
+def hydra_entry(
+    config_name: str,
+    schema: type | str,
+    prepare: Callable[[list[str]], list[str]] | str | None = None,
+) -> Callable:
     """Decorate ``fn(cfg: schema, raw: DictConfig)`` into a Hydra main with the shared handling.
 
-    Bad config values and unusable checkpoints print one line (``error: ...``) and exit with
-    code 2 before any work starts.
+    Args:
+        config_name: the primary config ``conf/<name>.yaml`` (and help ``hydra/help/<name>``).
+        schema: the config dataclass, or its name in :mod:`truckrl.configs` (imported only once
+            ``--help`` is ruled out).
+        prepare: optional check/rewrite of the command-line arguments before Hydra runs (may
+            raise ``ConfigError`` / ``CheckpointError``), or its ``"module:function"`` name.
     """
-    register()
 
-    def decorate(fn: Callable[[T, DictConfig], Any]) -> Callable[[], None]:
-        @hydra.main(version_base=None, config_path=CONFIG_PATH, config_name=config_name)
+    def decorate(fn: Callable[[Any, Any], Any]) -> Callable[[], None]:
         @functools.wraps(fn)
-        def main(raw: DictConfig) -> None:
-            try:
-                fn(to_config(schema, raw), raw)
-            except (ConfigError, CheckpointError) as e:
-                print(f"error: {e}", file=sys.stderr)
-                sys.exit(2)
+        def main() -> None:
+            argv = sys.argv[1:]
+            if {"-h", "--help"} & set(argv):
+                sys.stdout.write(help_text(config_name))
+                sys.exit(0)
+            with one_line_errors():
+                cls = _schema(schema)
+                _SCHEMA[:] = [cls]
+                if prepare is not None:
+                    sys.argv[1:] = _function(prepare)(argv)
+                _remember_run_dir(sys.argv[1:])
+                _hydra_main(config_name, cls, fn)()
 
         return main
 
     return decorate
 
 
+def _function(f: Callable | str) -> Callable:
+    if isinstance(f, str):
+        import importlib
+
+        module, _, name = f.partition(":")
+        return getattr(importlib.import_module(module), name)
+    return f
+
+
+def _schema(schema: type | str) -> type:
+    if isinstance(schema, str):
+        import truckrl.configs
+
+        return getattr(truckrl.configs, schema)
+    return schema
+
+
+def _hydra_main(config_name: str, cls: type, fn: Callable) -> Callable[[], None]:
+    import hydra
+
+    from truckrl.configs import register
+
+    register()
+
+    @hydra.main(version_base=None, config_path=CONFIG_PATH, config_name=config_name)
+    @functools.wraps(fn)
+    def task(raw: Any) -> None:
+        try:
+            with one_line_errors(in_task=True):
+                fn(to_config(cls, raw), raw)
+        except Exception as e:
+            setattr(e, _FROM_TASK, True)
+            raise
+
+    return task
+
+
+@contextlib.contextmanager
+def one_line_errors(in_task: bool = False) -> Iterator[None]:
+    """Turn user errors into :func:`fail` (one line, exit 2); leave real bugs their traceback.
+
+    Outside the task function this also covers Hydra's composition errors: Hydra reports those
+    through ``hydra._internal.utils.run_and_report`` (a multi-line message and exit 1), which is
+    wrapped here for the duration of the block.
+    """
+    from truckrl.agent.checkpoint import CheckpointError
+    from truckrl.sim.validation import ConfigError
+
+    patched = None if in_task else _wrap_run_and_report()
+    try:
+        yield
+    except (ConfigError, CheckpointError) as e:
+        if in_task:
+            remove_fresh_output_dir()
+        fail(str(e))
+    finally:
+        if patched is not None:
+            patched()
+
+
+def _remember_run_dir(argv: list[str]) -> None:
+    """Note what a named ``hydra.run.dir`` held before Hydra writes into it, and whether the root
+    of the default run dirs (``./outputs``) existed."""
+    outputs = (Path.cwd() / _OUTPUTS).resolve()
+    _KEEP[outputs] = outputs if outputs.exists() else outputs.parent
+    _SWEEP_ROOTS[:] = [(outputs / "multirun", _KEEP[outputs])]
+    for a in argv:
+        if a.lstrip("+").startswith("hydra.sweep.dir="):
+            d = Path(a.split("=", 1)[1].strip("'\"")).resolve()
+            _SWEEP_ROOTS.append((d, next(p for p in (d, *d.parents) if p.exists())))
+        if a.lstrip("+").startswith("hydra.run.dir="):
+            d = Path(a.split("=", 1)[1].strip("'\"")).resolve()
+            if d.is_dir():
+                _BEFORE[d] = {p.name for p in d.iterdir()}
+            else:
+                _KEEP[d] = next(p for p in d.parents if p.exists())
+
+
+def remove_fresh_output_dir() -> None:
+    """Undo what Hydra wrote for a rejected job (``.hydra/``, an empty job log, the dir itself if
+    it made it) when nothing else was written: a rejected run leaves no stray dir."""
+    from hydra.core.hydra_config import HydraConfig
+
+    try:
+        hc = HydraConfig.get()
+        out = Path(hc.runtime.output_dir).resolve()
+    except ValueError:  # not under Hydra
+        return
+    if out == Path.cwd().resolve() or not out.is_dir():
+        return
+    before = _BEFORE.get(out)
+    made = {p.name for p in out.iterdir()} - (before or set())
+    log = out / f"{hc.job.name}.log"
+    ours = {str(hc.output_subdir), log.name}
+    if any(n not in ours and not _empty_dir(out / n) for n in made):
+        return  # the job wrote something of its own: keep it
+    for name in made:
+        target = out / name
+        shutil.rmtree(target) if target.is_dir() else target.unlink()
+    if before is None:  # Hydra made it, and the folders above it up to what existed
+        outputs = (Path.cwd() / _OUTPUTS).resolve()
+        default = _KEEP.get(outputs, outputs) if outputs in out.parents else out.parent.parent
+        keep = _KEEP.get(out, default)
+        with contextlib.suppress(OSError):
+            for d in (out, *out.parents):
+                if d == keep:
+                    break
+                d.rmdir()
+
+
+def _remove_fresh_sweep_dirs() -> None:
+    """Delete sweep dirs this process made that hold only Hydra's ``multirun.yaml`` (a sweep whose
+    overrides were rejected), and the folders above them it made."""
+    for root, keep in _SWEEP_ROOTS:
+        for marker in list(root.rglob("multirun.yaml")) if root.is_dir() else []:
+            d = marker.parent
+            fresh = marker.stat().st_mtime >= _STARTED - 1
+            if not fresh or [p.name for p in d.iterdir()] != [marker.name]:
+                continue
+            marker.unlink()
+            with contextlib.suppress(OSError):
+                for p in (d, *d.parents):
+                    if p == keep:
+                        break
+                    p.rmdir()
+
+
+def _empty_dir(p: Path) -> bool:
+    return p.is_dir() and not any(p.iterdir())
+
+
+def _wrap_run_and_report() -> Callable[[], None] | None:
+    """Wrap Hydra's error reporter; return the function that restores it."""
+    try:
+        from hydra._internal import utils as hydra_utils
+    except ImportError:  # pragma: no cover - another Hydra layout: keep its own reporting
+        return None
+    original = hydra_utils.run_and_report
+
+    def run_and_report(func: Callable[[], Any]) -> Any:
+        try:
+            return func()
+        except Exception as e:
+            message = None if getattr(e, _FROM_TASK, False) else describe_hydra_error(e)
+            if message is None:
+                return original(lambda err=e: _reraise(err))
+            with contextlib.suppress(OSError):
+                _remove_fresh_sweep_dirs()
+            fail(message)
+
+    hydra_utils.run_and_report = run_and_report
+    return lambda: setattr(hydra_utils, "run_and_report", original)
+
+
+def _reraise(e: BaseException) -> NoReturn:
+    raise e
+
+
+def describe_hydra_error(e: BaseException) -> str | None:
+    """One line for an error Hydra or OmegaConf raised while composing (None: not a user error).
+
+    Names the full dotted field and what it accepts (type, range, unit, from the field's spec).
+    """
+    from hydra.errors import (
+        ConfigCompositionException,
+        MissingConfigException,
+        OverrideParseException,
+    )
+    from omegaconf.errors import OmegaConfBaseException
+
+    if isinstance(e, MissingConfigException):
+        missing = str(getattr(e, "missing_cfg_file", "") or "")
+        group, _, option = missing.rpartition("/")
+        options = list(getattr(e, "options", None) or [])
+        if group and options:
+            return f"{group}={option}: no such option; {group} is one of: {', '.join(options)}"
+        return str(e).strip().splitlines()[0]
+    if isinstance(e, OverrideParseException):
+        return (
+            f"cannot parse the override {e.override!r}: write key=value, lists as [a,b], and "
+            "quote values with special characters ('a b')"
+        )
+    cause = e.__cause__ if isinstance(e, ConfigCompositionException) else e
+    if isinstance(cause, OmegaConfBaseException) and getattr(cause, "full_key", None):
+        return describe_field_error(cause)
+    if isinstance(e, ConfigCompositionException | OmegaConfBaseException):
+        return str(e).strip().splitlines()[0]
+    if isinstance(e, OSError) and e.filename:  # e.g. Hydra making an unwritable run dir
+        return f"cannot write {e.filename}: {e.strerror or e}"
+    return None
+
+
+def describe_field_error(e: Any) -> str:
+    """One line for an OmegaConf error about field ``e.full_key`` (wrong type, unknown key...)."""
+    from omegaconf.errors import ConfigAttributeError, ConfigKeyError
+
+    key = str(e.full_key)
+    value = getattr(e, "value", None)
+    if isinstance(e, ConfigAttributeError | ConfigKeyError) and value is None:
+        parent, _, name = key.rpartition(".")
+        known = _known_fields(parent)
+        close = difflib.get_close_matches(name, known, n=1)
+        hint = f" (did you mean {parent + '.' if parent else ''}{close[0]}?)" if close else ""
+        where = parent or "the top level"
+        return (
+            f"unknown field {key}{hint}; python -m truckrl.configs {parent} lists the fields "
+            f"of {where}"
+        ).replace("configs  lists", "configs lists")
+    hint, spec = field_spec(key)
+    if hint is not None and dataclasses.is_dataclass(hint):
+        first = dataclasses.fields(hint)[0].name
+        return (
+            f"{key} = {value!r}: {key} is a group of fields, not a value; set a field such as "
+            f"{key}.{first}=... (python -m truckrl.configs {key} lists them)"
+        )
+    return f"{key} = {value!r} is not allowed: {accepted(hint, spec)}"
+
+
+def _known_fields(dotted: str) -> list[str]:
+    cls = field_spec(dotted)[0] if dotted else _root()
+    return [f.name for f in dataclasses.fields(cls)] if dataclasses.is_dataclass(cls) else []
+
+
+def _root() -> type:
+    if _SCHEMA:
+        return _SCHEMA[0]
+    from truckrl.configs import TrainConfig
+
+    return TrainConfig
+
+
+def field_spec(dotted: str, root: type | None = None) -> tuple[Any, Any]:
+    """``(type hint, Spec)`` of a dotted field (``env.lidar.num_beams``; list indices dropped),
+    searched from ``root`` (default: the running entry's schema) and every task's config under
+    ``env.task``. ``(None, None)`` when unknown."""
+    import re
+
+    from truckrl.task import TaskConfig, task_class, task_names
+
+    parts = re.sub(r"\[\d+\]", "", dotted).split(".")
+    candidates: list[type] = [root or _root()]
+    for i, part in enumerate(parts):
+        found = None
+        for cls in candidates:
+            if not dataclasses.is_dataclass(cls):
+                continue
+            hints = typing.get_type_hints(cls)
+            for f in dataclasses.fields(cls):
+                if f.name == part:
+                    found = (hints[f.name], f.metadata.get("spec"))
+                    break
+            if found:
+                break
+        if found is None:
+            return None, None
+        hint = found[0]
+        if i == len(parts) - 1:
+            return found
+        candidates = [hint]
+        if hint is Any or isinstance(hint, type) and issubclass(hint, TaskConfig):  # env.task
+            candidates = [task_class(n).config_class for n in task_names()]
+    return None, None
+
+
+def accepted(hint: Any, spec: Any) -> str:
+    """What a field accepts, in words: ``a whole number in [1, 4096] (LiDAR beams R)``."""
+    args = typing.get_args(hint)
+    nullable = type(None) in args
+    if nullable:
+        hint = next(a for a in args if a is not type(None))
+    rng = f" in {spec.range_text()}" if spec is not None and spec.choices is None else ""
+    if hint is bool:
+        text = "true or false"
+    elif hint is int:
+        text = f"a whole number{rng}"
+    elif hint is float:
+        text = f"a number{rng}"
+    elif hint is str and spec is not None and spec.choices:
+        text = "one of " + " | ".join(spec.choices)
+    elif hint is str:
+        text = "a string"
+    elif typing.get_origin(hint) is tuple:
+        inner = typing.get_args(hint)
+        kind = "whole numbers" if inner and inner[0] is int else "numbers"
+        if len(inner) == 2 and inner[1] is not Ellipsis:
+            text = f"a [min, max] pair of {kind}{rng}"
+        else:
+            text = f"a list of {kind}{rng} such as [1,2]"
+    else:
+        text = f"a value of type {getattr(hint, '__name__', hint)}"
+    if nullable:
+        text += ", or null"
+    if spec is not None and spec.unit and spec.unit != "-":
+        text += f" [{spec.unit}]"
+    if spec is not None and spec.doc:
+        text += f" ({spec.doc})"
+    return text
+
+
 def seed_everything(seed: int) -> None:
     """Seed torch, numpy's global generator (third-party code draws from it) and ``random``."""
+    import random
+
+    import numpy as np
+    import torch
+
     torch.manual_seed(seed)
     np.random.seed(seed % 2**32)  # noqa: NPY002
     random.seed(seed)

@@ -88,6 +88,7 @@ RESUME_OVERRIDES = (
     "max_minutes",
     "stop_difficulty",
     "resume",
+    "overwrite",
     "device",
     "log",
     "checkpoint",
@@ -96,20 +97,31 @@ RESUME_OVERRIDES = (
 
 @dataclass
 class TrainConfig:
-    """``python -m truckrl.train``: everything a training run reads."""
+    """``python -m truckrl.train``: everything a training run reads.
+
+    By default a run ends on its own: at the paper's goal (``stop_difficulty`` 6: 0.47 m and
+    0.94 deg) or after ``max_minutes`` 60, whichever comes first.
+    """
 
     seed: int = param(0, lo=0, hi=SEED_MAX, doc="torch/numpy/python seed; env seeds derive from it")
     device: str = param("cpu", doc="env and policy device: cpu | cuda")
     total_frames: int | None = param(
-        500_000_000, lo=1, hi=1e15, unit="frames", doc="stop after this many frames (all sessions)"
+        None, lo=1, hi=1e15, unit="frames", doc="stop after this many frames (all sessions)"
     )
     max_minutes: float | None = param(
-        None, lo=0.0, hi=1e7, lo_open=True, unit="min", doc="stop after this long (this session)"
+        60.0, lo=0.0, hi=1e7, lo_open=True, unit="min", doc="stop after this long (this session)"
     )
     stop_difficulty: float | None = param(
-        None, lo=0.0, hi=MAX_DIFFICULTY, doc="stop once the curriculum reaches this difficulty"
+        6.0,
+        lo=0.0,
+        hi=MAX_DIFFICULTY,
+        doc="stop once the curriculum reaches this difficulty",
+        source="paper's goal",
     )
-    resume: str | None = param(None, doc="checkpoint file or run dir to continue")
+    resume: str | None = param(
+        None, doc="checkpoint file or run dir to continue; auto: this run dir's, if any"
+    )
+    overwrite: bool = param(False, doc="start anew in a run dir that already holds a checkpoint")
     env: EnvConfig = field(default_factory=EnvConfig)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -122,7 +134,9 @@ class TrainConfig:
         validate(self)
         check_device("device", self.device)
         if self.total_frames is None and self.max_minutes is None:
-            raise ConfigError("set total_frames and/or max_minutes (both are null)")
+            raise ConfigError(
+                "set total_frames and/or max_minutes (both are null: the run might never stop)"
+            )
         self.ppo.check_batch(self.collector.frames_per_batch)
 
 

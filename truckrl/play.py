@@ -30,41 +30,30 @@ import dataclasses
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-import torch
-from omegaconf import DictConfig
-
-from truckrl.agent.policy import load_policy
 from truckrl.cli import hydra_entry
-from truckrl.configs import PlayConfig
-from truckrl.env import TruckEnv
-from truckrl.runner import (
-    ActionSource,
-    ArraySource,
-    CombinedInput,
-    KeyboardSource,
-    LoopResult,
-    PolicySource,
-    RandomSource,
-    Runner,
-    StripSink,
-    run_loop,
-)
-from truckrl.sim.validation import ConfigError
-from truckrl.viz.keyboard import KeyInput, NoKeys, ScriptedKeys, parse_key_script
-from truckrl.viz.video import Mp4Writer, frame_strip, write_png
+
+if TYPE_CHECKING:  # torch, TorchRL and OpenCV load on use: `--help` answers before them
+    import numpy as np
+
+    from truckrl.configs import PlayConfig
+    from truckrl.runner import LoopResult, Runner
+    from truckrl.viz.keyboard import KeyInput
 
 
 # ---------------------------------------------------------------------------------- sources
-@torch.no_grad()
 def load_actions(path: str | os.PathLike) -> np.ndarray | list[KeyInput]:
     """An ``.npy`` action array ``[F, 2]`` (values in [-1, 1]) or a parsed key script.
 
     Raises:
         ConfigError: missing file, wrong array shape, or a bad script line.
     """
+    import numpy as np
+
+    from truckrl.sim.validation import ConfigError
+    from truckrl.viz.keyboard import parse_key_script
+
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"actions file not found: {p}")
@@ -82,8 +71,35 @@ def load_actions(path: str | os.PathLike) -> np.ndarray | list[KeyInput]:
 
 
 # ---------------------------------------------------------------------------------- entry
+def check_output(field: str, path: str | None) -> None:
+    """Check an output file (``record=``, ``strip=``) can be written, before anything runs.
+
+    Raises:
+        ConfigError: one line naming the field, the path and the reason.
+    """
+    from truckrl.agent.session import check_dir_usable
+    from truckrl.sim.validation import ConfigError
+
+    if not path:
+        return
+    p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"{field}={path} is a directory; give a file name")
+    try:
+        check_dir_usable(p.parent if str(p.parent) else Path("."), "folder")
+    except ConfigError as e:
+        raise ConfigError(f"{field}={path} cannot be written: {e}") from None
+
+
 def build_runner(pc: PlayConfig) -> tuple[Runner, Any, float, str]:
     """Env, sources and input for a validated config: ``(runner, input, fps, description)``."""
+    import numpy as np
+
+    from truckrl.agent.policy import load_policy
+    from truckrl.env import TruckEnv
+    from truckrl.runner import ArraySource, KeyboardSource, PolicySource, RandomSource, Runner
+    from truckrl.viz.keyboard import NoKeys, ScriptedKeys
+
     actor = None
     env_cfg = pc.env
     difficulty = pc.difficulty
@@ -101,7 +117,7 @@ def build_runner(pc: PlayConfig) -> tuple[Runner, Any, float, str]:
     env = TruckEnv(num_envs=1, device=pc.device, config=env_cfg, seed=pc.seed)
     if difficulty is not None:
         env.set_difficulty(difficulty)
-    sources: dict[str, ActionSource] = {"manual": KeyboardSource(env, pc.keyboard)}
+    sources: dict[str, Any] = {"manual": KeyboardSource(env, pc.keyboard)}
     mode = "manual"
     inputs: Any = NoKeys()
     if actor is not None:
@@ -122,6 +138,13 @@ def build_runner(pc: PlayConfig) -> tuple[Runner, Any, float, str]:
 
 def play(pc: PlayConfig, key_state=None) -> LoopResult:
     """Run the viewer (window, or headless) until quit, the input ends or a limit is reached."""
+    from truckrl.runner import CombinedInput, StripSink, run_loop
+    from truckrl.sim.validation import ConfigError
+    from truckrl.viz.keyboard import ScriptedKeys
+    from truckrl.viz.video import Mp4Writer, frame_strip, write_png
+
+    check_output("record", pc.record)
+    check_output("strip", pc.strip)
     runner, inputs, fps, what = build_runner(pc)
     window = None
     if not pc.headless:
@@ -181,8 +204,10 @@ def play(pc: PlayConfig, key_state=None) -> LoopResult:
     return result
 
 
-@hydra_entry("play", PlayConfig)
-def main(pc: PlayConfig, raw: DictConfig) -> None:
+@hydra_entry("play", "PlayConfig")
+def main(pc: PlayConfig, raw: Any) -> None:
+    import torch
+
     torch.set_num_threads(pc.threads)
     play(pc)
 

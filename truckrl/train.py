@@ -1,105 +1,75 @@
 """``python -m truckrl.train``: PPO on TruckEnv with the success curriculum (the paper's setup).
 
     python -m truckrl.train                                # experiment=fast (CPU), paper curriculum
-    python -m truckrl.train experiment=paper max_minutes=60           # the paper's PPO numbers
     python -m truckrl.train resume=outputs/2025-01-01/12-00-00        # continue a stopped run
-    python -m truckrl.train -m ppo.lr=1e-4,3e-4                       # sweep (outputs/multirun/...)
-    python -m truckrl.train --cfg job                                 # print the composed config
+    python -m truckrl.train --help                                    # options and examples
 
-Each iteration collects ``collector.workers x num_envs x steps_per_env`` frames, feeds the finished
-episodes to the curriculum (a promotion reaches every worker before the next collection), runs the
-PPO update and logs to ``<run_dir>/tb``. ``<run_dir>/checkpoints/last.pt`` is written every
-``checkpoint.interval`` iterations and at the end.
+Each iteration collects ``collector.workers x num_envs x steps_per_env`` frames, feeds finished
+episodes to the curriculum in start order (:mod:`truckrl.agent.cohorts`; a promotion reaches
+every worker before the next collection), runs the PPO update and logs to ``<run_dir>/tb``.
+``<run_dir>/checkpoints/last.pt`` is written every ``checkpoint.interval`` iterations and at the
+end. A run stops at ``stop_difficulty`` (default 6, the paper's goal), ``max_minutes`` (default
+60), ``total_frames``, or a signal (Ctrl-C, SIGTERM: at the next iteration boundary, with a
+checkpoint, exit 0; :mod:`truckrl.agent.session`), and its last lines say why and what to run next.
 
 Resuming (``resume=<checkpoint or run dir>``) continues in the original run dir with the
 checkpoint's model, optimizer, learning rate, curriculum, counters and RNG states, and with its
-saved config except the keys in :data:`RESUME_OVERRIDES`, which come from the command line.
-``total_frames`` counts all sessions together; ``max_minutes`` limits this session. The envs
-restart with fresh episodes seeded from ``(seed, iteration)``: a faithful continuation, not a
-bit-identical one.
+saved config except the keys in :data:`~truckrl.configs.RESUME_OVERRIDES`, which come from the
+command line; an older checkpoint branches into a new run dir. ``total_frames`` counts all
+sessions together; ``max_minutes`` limits this session. The envs restart with fresh episodes
+seeded from ``(seed, iteration)``: a faithful continuation, not a bit-identical one.
 """
 
 from __future__ import annotations
 
 import json
-import sys
+import logging
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
-import yaml
-from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
-from torchrl.collectors import Collector
-from tqdm import tqdm
+from truckrl.cli import hydra_entry
 
-from truckrl.agent.checkpoint import (
-    CHECKPOINT_DIR,
-    LAST_NAME,
-    load_training_state,
-    restore_rng,
-    save_training_state,
-)
-from truckrl.agent.collection import check_difficulty, make_env, set_difficulty
-from truckrl.agent.curriculum import Curriculum
-from truckrl.agent.heldout import heldout_due, heldout_scalars
-from truckrl.agent.metrics import (
-    EpisodeTracker,
-    finished_in_time_order,
-    hparam_metrics,
-    iteration_scalars,
-)
-from truckrl.agent.network import make_actor_critic, parameter_count
-from truckrl.agent.policy import saved_config
-from truckrl.agent.ppo import PPO
-from truckrl.cli import git_revision, hydra_entry, seed_everything, to_config
-from truckrl.configs import RESUME_OVERRIDES, TrainConfig
-from truckrl.run_logger import RunLogger
-from truckrl.task import make_task
+log = logging.getLogger("truckrl.train")
 
 
-@dataclass
-class Counters:
-    iteration: int = 0
-    frames: int = 0
-    wall_time_s: float = 0.0
-
-
-def resumed_config(saved: dict, current: dict) -> dict:
-    """The checkpoint's config with :data:`RESUME_OVERRIDES` taken from ``current``."""
-    ignored = sorted(
-        k
-        for k in set(current) | set(saved)
-        if k not in RESUME_OVERRIDES and current.get(k) != saved.get(k)
-    )
-    if ignored:
-        print(
-            f"resume: keeping the checkpoint's {', '.join(ignored)} (differs from the command line)"
-        )
-    return {**saved, **{k: current[k] for k in RESUME_OVERRIDES if k in current}}
-
-
-def should_stop(tc: TrainConfig, counters: Counters, cur: Curriculum, start: float) -> bool:
-    if tc.total_frames is not None and counters.frames >= tc.total_frames:
-        return True
-    if tc.max_minutes is not None and time.monotonic() - start >= 60.0 * tc.max_minutes:
-        return True
-    return tc.stop_difficulty is not None and cur.difficulty >= tc.stop_difficulty
-
-
-def train(tc: TrainConfig, run_dir: Path, state: dict | None = None) -> Counters:
-    """Run (or, with a loaded checkpoint ``state``, resume) one training job.
+def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None = None,
+          stop: Any = None) -> Any:  # fmt: skip
+    """Run (or, with a loaded checkpoint ``state``, resume) one training job; return its counters.
+    ``stop``: installed :class:`~truckrl.agent.session.StopSignals` (:func:`run` installs them).
 
     One recipe, top to bottom like TorchRL's ``ppo_mujoco.py`` (create env, models, PPO,
     collector, logger; then the loop): splitting it would hide the order the parts depend on.
     """
+    # Heavy imports here, not at module level: `--help` and config errors answer before they load
+    import yaml
+    from torchrl.collectors import Collector
+
+    from truckrl.agent import checkpoint as ckpt
+    from truckrl.agent.cohorts import StartOrderFeed
+    from truckrl.agent.collection import check_difficulty, make_env, set_difficulty
+    from truckrl.agent.curriculum import Curriculum
+    from truckrl.agent.heldout import heldout_due, heldout_scalars
+    from truckrl.agent.metrics import EpisodeTracker, hparam_metrics, iteration_scalars
+    from truckrl.agent.network import make_actor_critic, parameter_count
+    from truckrl.agent.ppo import PPO
+    from truckrl.agent.progress import Progress, stop_lines, stop_reason
+    from truckrl.agent.session import Counters, StopSignals, workers_ignore_signals, write_parent
+    from truckrl.cli import git_revision, seed_everything
+    from truckrl.run_logger import RunLogger, flatten
+    from truckrl.task import make_task
+
     cfg_yaml = yaml.safe_dump(asdict(tc), sort_keys=False)
+    source = git_revision()  # once: checkpoints record the commit the session started from
     counters = Counters(**state["counters"]) if state else Counters()
     seed_everything(tc.seed)
+    stop = stop or StopSignals()
 
-    # Create environment
+    # Create environment (workers ignore Ctrl-C: this process stops and closes them)
     c = tc.collector
-    env = make_env(tc.env, c.workers, c.num_envs, tc.seed, counters.iteration, tc.device)
+    with workers_ignore_signals():
+        env = make_env(tc.env, c.workers, c.num_envs, tc.seed, counters.iteration, tc.device)
     num_obs = env.observation_spec["observation"].shape[-1]
     num_beams = env.observation_spec["lidar"].shape[-1]
     task = make_task(tc.env)  # the task's vocabulary: reward terms and errors
@@ -110,12 +80,19 @@ def train(tc: TrainConfig, run_dir: Path, state: dict | None = None) -> Counters
     ppo = PPO(ac, tc.ppo)
     curriculum = Curriculum(tc.curriculum)
     if state:
-        ac.model.load_state_dict(state["model"])
-        ppo.load_state_dict(state["ppo"])
-        curriculum.load_state_dict(state["curriculum"])
-        restore_rng(state["rng"])  # after the model is built: its init draws from the RNG
-        print(f"resumed {run_dir} at iteration {counters.iteration}, frames {counters.frames:,}")
-    print(f"model: {parameter_count(ac.model):,} parameters ({num_beams} LiDAR beams)")
+        per_iteration = tc.ppo.num_epochs * tc.ppo.num_minibatches  # optimizer steps
+        try:
+            ckpt.restore_training(
+                state, ac.model, ppo, curriculum, num_obs, num_beams, per_iteration
+            )
+        except ckpt.CheckpointError:
+            env.close()  # the workers, before the one-line error
+            raise
+        ckpt.restore_rng(state["rng"])  # after the model is built: its init draws from the RNG
+        stop.last_checkpoint = str(state["path"])
+        log.info(f"resumed {state['path']} at iteration {counters.iteration}, "
+                 f"frames {counters.frames:,} -> run dir {run_dir}")  # fmt: skip
+    log.info(f"model: {parameter_count(ac.model):,} parameters ({num_beams} LiDAR beams)")
     tolerance = set_difficulty(env, curriculum.difficulty)
 
     # Create collector
@@ -128,56 +105,61 @@ def train(tc: TrainConfig, run_dir: Path, state: dict | None = None) -> Counters
         auto_register_policy_transforms=False,  # the policy is stateless: no InitTracker needed
     )
 
-    # Create logger (a resumed run drops what the killed run logged after its checkpoint)
-    logger = RunLogger(run_dir, purge_step=counters.frames + 1 if state else None)
-    if not state:
+    # Create logger (a continued run drops what the killed run logged after its checkpoint)
+    continued = state is not None and parent is None
+    logger = RunLogger(run_dir, purge_step=counters.frames + 1 if continued else None)
+    if not continued:
         logger.config(cfg_yaml, asdict(tc), hparam_metrics(0.0, 0.0))
-        (run_dir / "source.json").write_text(json.dumps(git_revision()) + "\n")
-    print(f"run dir: {run_dir}; batch {tc.collector.frames_per_batch:,} frames/iteration")
+        (run_dir / "source.json").write_text(json.dumps(source) + "\n")
+        if parent:
+            write_parent(run_dir, parent)
+    log.info(f"run dir: {run_dir}; batch {tc.collector.frames_per_batch:,} frames/iteration")
 
     def save(final: bool = False) -> None:
         counters.wall_time_s = wall_at_start + time.monotonic() - session_start
-        ckpt_dir = run_dir / CHECKPOINT_DIR
-        paths = [ckpt_dir / LAST_NAME]
+        ckpt_dir = run_dir / ckpt.CHECKPOINT_DIR
+        paths = [ckpt_dir / ckpt.LAST_NAME]
         keep = tc.checkpoint.keep_every
         if keep and (counters.iteration % keep == 0 or final):
             paths.append(ckpt_dir / f"iter_{counters.iteration:06d}.pt")
         for p in paths:
-            save_training_state(
-                p,
-                model=ac.model,
-                ppo=ppo,
-                curriculum=curriculum,
-                counters=asdict(counters),
-                config_yaml=cfg_yaml,
-                num_obs=num_obs,
-                num_beams=num_beams,
-                source=git_revision(),
-            )
+            try:
+                ckpt.save_training_state(p, model=ac.model, ppo=ppo, curriculum=curriculum,
+                                 counters=asdict(counters), config_yaml=cfg_yaml, num_obs=num_obs,
+                                 num_beams=num_beams, source=source)  # fmt: skip
+            except OSError as e:  # full disk, lost permission: stop with the last good one intact
+                raise ckpt.CheckpointError(f"cannot write checkpoint {p} ({e.strerror or e}); the "
+                                      f"last good checkpoint is intact: {stop.last_checkpoint}") from None  # fmt: skip
+        stop.last_checkpoint = str(paths[0])
 
     # Training loop
     tracker = EpisodeTracker(task.reward_keys, task.error_quantities)
+    feed = StartOrderFeed()  # curriculum evidence unbiased by the synchronous (re)start
     session_start, wall_at_start = time.monotonic(), counters.wall_time_s
     video_ok = tc.log.video_interval > 0
-    pbar = tqdm(total=tc.total_frames, initial=counters.frames, unit="frame", unit_scale=True,
-                dynamic_ncols=True, disable=not tc.log.progress_bar)  # fmt: skip
+    progress = Progress(tc.total_frames, tc.max_minutes, tc.stop_difficulty, tc.log.progress_bar)
     batches = iter(collector)
-    finished = False  # a crash must not overwrite the last good checkpoint
+    reason = None  # why the loop ended; None after an error (the last good checkpoint stays)
     try:
-        while not should_stop(tc, counters, curriculum, session_start):
+        while True:
+            minutes = (time.monotonic() - session_start) / 60.0
+            reason = stop.name or stop_reason(counters.frames, minutes, curriculum.difficulty,
+                                              tc.total_frames, tc.max_minutes, tc.stop_difficulty)  # fmt: skip
+            if reason is not None:
+                break
             t0 = time.perf_counter()
-            batch = next(batches)
+            with stop.interruptible():  # a signal here drops the partial batch at once
+                batch = next(batches)
             t1 = time.perf_counter()
 
             # Episode statistics and curriculum
             check_difficulty(batch, curriculum.difficulty)
             stats = tracker.update(batch)
-            promoted = curriculum.update(
-                finished_in_time_order(batch, "success"),
-                finished_in_time_order(batch, "difficulty"),
-            )
+            promoted = curriculum.update(*feed.update(batch))
             if promoted:
                 tolerance = set_difficulty(env, curriculum.difficulty)
+                log.info(f"difficulty {curriculum.difficulty:g} ({tolerance[0]:.3g} m, "
+                         f"{tolerance[1]:.3g} deg) at {minutes:.1f} min, {counters.frames:,} frames")  # fmt: skip
 
             # PPO update
             learn = ppo.update(batch)
@@ -194,9 +176,8 @@ def train(tc: TrainConfig, run_dir: Path, state: dict | None = None) -> Counters
                        "tolerance_heading_deg": tolerance[1]}  # fmt: skip
                 scalars = iteration_scalars(stats, learn, cur, timing, task.error_quantities)
                 logger.scalars(scalars, counters.frames)
-            pbar.update(frames)
-            pbar.set_postfix(fps=f"{timing['perf/fps']:.0f}", diff=curriculum.difficulty,
-                             ema=f"{curriculum.ema:.2f}", refresh=False)  # fmt: skip
+            progress.update(counters.frames, (time.monotonic() - session_start) / 60.0,
+                            curriculum.difficulty, curriculum.ema, timing["perf/fps"])  # fmt: skip
             if video_ok and logger.video_due(counters.iteration, tc.log.video_interval):
                 video_ok = logger.rollout_video(
                     ac.actor, tc.env, curriculum.difficulty, tc.seed, tc.log.video_steps,
@@ -211,36 +192,56 @@ def train(tc: TrainConfig, run_dir: Path, state: dict | None = None) -> Counters
                 logger.scalars(evals, counters.frames)
             if counters.iteration % tc.checkpoint.interval == 0:
                 save()
-        finished = True
-    except KeyboardInterrupt:
-        print("interrupted: saving a checkpoint", file=sys.stderr)
-        finished = True
+    except KeyboardInterrupt:  # raised by StopSignals while collecting (or with no handlers)
+        reason = stop.name or "SIGINT"
     finally:
-        pbar.close()
-        if finished:
-            save(final=True)
-        logger.close()
-        collector.shutdown()
-        if not env.is_closed:
-            env.close()
-    print(
-        f"done: iteration {counters.iteration}, frames {counters.frames:,}, "
-        f"difficulty {curriculum.difficulty}, checkpoint {run_dir / CHECKPOINT_DIR / LAST_NAME}"
-    )
+        progress.close()
+        try:
+            if reason is not None:
+                save(final=True)
+                final = hparam_metrics(curriculum.difficulty, curriculum.ema)  # HPARAMS table
+                logger.writer.add_hparams(flatten(asdict(tc)), final, run_name=".",
+                                          global_step=counters.frames)  # fmt: skip
+        finally:
+            logger.close()
+            collector.shutdown()
+            if not env.is_closed:
+                env.close()
+    minutes = (time.monotonic() - session_start) / 60.0
+    for line in stop_lines(reason, run_dir, counters.iteration, counters.frames, minutes,
+                           curriculum.difficulty):  # fmt: skip
+        log.info(line)
+    stop.hand_over()  # under submitit: requeue the job (it resumes by itself)
     return counters
 
 
-@hydra_entry("train", TrainConfig)
-def main(tc: TrainConfig, raw: DictConfig) -> None:
-    run_dir, state = Path(HydraConfig.get().runtime.output_dir), None
-    if tc.resume:
-        state = load_training_state(tc.resume)
-        current = OmegaConf.to_container(raw, resolve=True)
-        current.pop("hydra", None)
-        tc = to_config(TrainConfig, resumed_config(saved_config(state), current))
-        ckpt = state["path"]
-        run_dir = ckpt.parent.parent if ckpt.parent.name == CHECKPOINT_DIR else ckpt.parent
-    train(tc, run_dir, state)
+def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
+    """Plan the session (run dir, resume or branch; :func:`~truckrl.agent.session.plan_session`)
+    and train; ``tc.resume``'s checkpoint supplies the config but for ``RESUME_OVERRIDES``."""
+    from truckrl.agent.session import StopSignals, merged_config, plan_session
+    from truckrl.configs import RESUME_OVERRIDES, TrainConfig
+
+    plan = plan_session(tc.resume, tc.overwrite, job_dir, explicit_dir)
+    if plan.state:
+        tc = merged_config(plan.state, asdict(tc), TrainConfig, RESUME_OVERRIDES, log)
+    stop = StopSignals().install()  # from here on a signal stops at the next iteration boundary
+    try:
+        return train(tc, plan.run_dir, plan.state, plan.parent, stop)
+    finally:
+        stop.restore()
+
+
+@hydra_entry("train", "TrainConfig", prepare="truckrl.agent.session:prepare_argv")
+def main(tc: Any, raw: Any) -> None:
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    from truckrl.agent.session import ignore_stop_signals
+
+    hc = HydraConfig.get()
+    named = any(o.startswith("hydra.run.dir=") for o in hc.overrides.hydra)
+    run(tc, Path(hc.runtime.output_dir), explicit_dir=hc.mode == RunMode.RUN and named)
+    ignore_stop_signals()  # the run is over: a late Ctrl-C must not turn the exit into a traceback
 
 
 if __name__ == "__main__":

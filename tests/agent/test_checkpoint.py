@@ -87,3 +87,37 @@ def test_rng_restore_replays_all_three_generators(tmp_path):
     torch.testing.assert_close(first[0], again[0])
     np.testing.assert_array_equal(first[1], again[1])
     assert first[2] == again[2]
+
+
+def test_checkpoint_mode_follows_the_umask(tmp_path):
+    old = os.umask(0o027)
+    try:
+        path = ckpt.save_checkpoint(tmp_path / "last.pt", {"version": ckpt.CHECKPOINT_VERSION})
+    finally:
+        os.umask(old)
+    assert path.stat().st_mode & 0o777 == 0o640  # not mkstemp's 0o600
+
+
+def test_text_and_unsafe_files_say_why_without_suggesting_an_unsafe_load(tmp_path):
+    text = tmp_path / "config.yaml"
+    text.write_text("seed: 0\n")
+    with pytest.raises(ckpt.CheckpointError, match="not a truckrl checkpoint: it is a text file"):
+        ckpt.load_checkpoint(text)
+    unsafe = tmp_path / "unsafe.pt"
+    torch.save({"version": ckpt.CHECKPOINT_VERSION, "x": ckpt.Path("x")}, unsafe)
+    with pytest.raises(ckpt.CheckpointError) as err:
+        ckpt.load_checkpoint(unsafe)
+    assert "safe load refuses" in str(err.value) and "weights_only" not in str(err.value)
+
+
+def test_optimizer_state_of_another_model_is_refused_before_the_first_step():
+    state = training_state()
+    other = make_actor_critic(ModelConfig(fusion_dim=32), num_obs=26, num_beams=16)
+    ppo = PPO(other, PPOConfig(num_minibatches=1, num_epochs=1))
+    with pytest.raises(ckpt.CheckpointError, match="optimizer state does not fit"):
+        ckpt.check_optimizer_state(ppo.optimizer, state["ppo"]["optimizer"], "x.pt", None)
+    ac = make_actor_critic(ModelConfig(), num_obs=26, num_beams=16)
+    same = PPO(ac, PPOConfig(num_minibatches=1, num_epochs=1))
+    ckpt.check_optimizer_state(same.optimizer, state["ppo"]["optimizer"], "x.pt", 1)  # fits
+    with pytest.raises(ckpt.CheckpointError, match="bad counters"):
+        ckpt.check_optimizer_state(same.optimizer, state["ppo"]["optimizer"], "x.pt", 2)

@@ -8,13 +8,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import torch
 import yaml
 
-from truckrl.agent.checkpoint import CheckpointError, load_training_state
-from truckrl.agent.network import ModelConfig, make_actor_critic
+from truckrl.agent.checkpoint import CheckpointError, load_training_state, load_weights
 from truckrl.sim.validation import ConfigError, build
-from truckrl.task import EnvConfig
+from truckrl.task import NUM_FEATURES, EnvConfig, task_class
 
 
 @dataclass
@@ -42,34 +40,56 @@ def saved_config(state: dict[str, Any]) -> dict[str, Any]:
     try:
         data = yaml.safe_load(state["config"])
     except yaml.YAMLError as e:
-        raise CheckpointError(f"{state['path']}: saved config is not YAML ({e})") from None
+        first = str(e).strip().splitlines()[0]
+        raise CheckpointError(f"{state['path']}: saved config is not YAML ({first})") from None
     if not isinstance(data, dict):
         raise CheckpointError(f"{state['path']}: saved config is not a mapping")
     return data
 
 
-def load_policy(checkpoint: str | os.PathLike, device: str | torch.device = "cpu") -> LoadedPolicy:
+def check_shapes(state: dict[str, Any], env_cfg: EnvConfig) -> None:
+    """Check the checkpoint's observation and LiDAR sizes against its env config.
+
+    Raises:
+        CheckpointError: the beam count or the observation size recorded with the weights differs
+            from what the saved config's env produces.
+    """
+    path = state["path"]
+    if env_cfg.lidar.num_beams != state["num_beams"]:
+        raise CheckpointError(
+            f"{path}: the weights are for {state['num_beams']} LiDAR beams but its config has "
+            f"env.lidar.num_beams = {env_cfg.lidar.num_beams}"
+        )
+    try:
+        expected = NUM_FEATURES + task_class(env_cfg.task.name).num_extras
+    except (ConfigError, KeyError, ImportError) as e:
+        raise CheckpointError(f"{path}: unknown task {env_cfg.task.name!r} ({e})") from None
+    if state["num_obs"] != expected:
+        raise CheckpointError(
+            f"{path}: the weights are for {state['num_obs']} observation features but task "
+            f"{env_cfg.task.name!r} observes {expected}"
+        )
+
+
+def load_policy(checkpoint: str | os.PathLike, device: str | Any = "cpu") -> LoadedPolicy:
     """Load a training checkpoint (file or run dir) and rebuild its actor.
 
     Raises:
-        CheckpointError: missing, corrupt, or weights that do not fit the saved config.
+        CheckpointError: missing, corrupt, or weights that do not fit the saved config (one line).
     """
+    from truckrl.agent.network import ModelConfig, make_actor_critic  # torchrl: loaded on use
+
     state = load_training_state(checkpoint, map_location=device)
     path = state["path"]
     saved = saved_config(state)
     try:
         env_cfg = build(EnvConfig, saved.get("env"), "env")
         model_cfg = build(ModelConfig, saved.get("model"), "model")
-        if env_cfg.lidar.num_beams != state["num_beams"]:
-            raise ValueError(
-                f"num_beams {state['num_beams']} != env.lidar.num_beams {env_cfg.lidar.num_beams}"
-            )
-        ac = make_actor_critic(model_cfg, int(state["num_obs"]), int(state["num_beams"]))
-        ac.model.load_state_dict(state["model"])
-        difficulty = float(state["curriculum"]["difficulty"])
-        counters = dict(state["counters"])
-    except (KeyError, AttributeError, TypeError, ValueError, RuntimeError, ConfigError) as e:
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise CheckpointError(f"{path}: not a usable policy checkpoint ({first})") from None
+    except ConfigError as e:
+        raise CheckpointError(f"{path}: its saved config is not valid ({e})") from None
+    check_shapes(state, env_cfg)
+    ac = make_actor_critic(model_cfg, int(state["num_obs"]), int(state["num_beams"]))
+    load_weights(ac.model, state["model"], path)
     ac.model.to(device).eval()
-    return LoadedPolicy(ac.actor, env_cfg, difficulty, path, counters)
+    difficulty = float(state["curriculum"]["difficulty"])
+    return LoadedPolicy(ac.actor, env_cfg, difficulty, path, dict(state["counters"]))
