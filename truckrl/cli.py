@@ -23,6 +23,7 @@ import shutil
 import subprocess
 import sys
 import typing
+import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, NoReturn, TypeVar
@@ -64,6 +65,11 @@ def help_text(config_name: str) -> str:
 
     path = Path(CONFIG_PATH) / "hydra" / "help" / f"{config_name}.yaml"
     return yaml.safe_load(path.read_text())["template"].rstrip() + "\n"
+
+
+# The presets' search path includes the user's ./conf overlay; run from elsewhere it is absent,
+# which is normal, so Hydra's warning about it would only be noise.
+warnings.filterwarnings("ignore", message=r"provider=hydra\.searchpath in main, path=conf")
 
 
 def hydra_entry(
