@@ -66,7 +66,8 @@ def test_wheel_installs_in_a_fresh_venv_and_runs_from_elsewhere(tmp_path):
     assert torch_version.startswith("2.13.0"), torch_version  # not replaced by another build
     job = run([py, "-m", "truckrl.train", "--cfg", "job"], elsewhere)
     assert "collector:" in job.stdout and "num_envs: 1024" in job.stdout  # experiment=fast
-    assert "episodes: 100" in run([py, "-m", "truckrl.evaluate", "--help"], elsewhere).stdout
+    helped = run([py, "-m", "truckrl.evaluate", "--help"], elsewhere).stdout  # the help template
+    assert "Deterministic evaluation" in helped and "checkpoint=" in helped
     assert "format: onnx" in run([py, "-m", "truckrl.export", "--help"], elsewhere).stdout
     play = run([py, "-m", "truckrl.play", "headless=true", "max_frames=3"], elsewhere)
     assert "3 frames, 2 steps" in play.stdout
