@@ -40,6 +40,23 @@ _SCHEMA: list[type] = []  # the running entry's schema: error messages look fiel
 _FROM_TASK = "_truckrl_from_task"  # marks an exception the task raised (keeps its traceback)
 
 
+def workers_ignore_stop_signals(module_name: str) -> None:
+    """Call at the top of an entry module: in the env workers that multiprocessing's spawn starts
+    from it (they run the entry module as ``__mp_main__`` first) ignore Ctrl-C, SIGTERM and SIGUSR2.
+
+    A Ctrl-C reaches the whole process group, SLURM signals every process of a job: the trainer
+    stops on them and closes its workers; a worker killed by the same signal would print a
+    traceback and stall the shutdown (21 s). The workers inherit nothing from the parent's
+    handlers, and a parent-side ``SIG_IGN`` while they start would drop signals meant for it.
+    """
+    if module_name == "__mp_main__":
+        import signal
+
+        for name in ("SIGINT", "SIGTERM", "SIGUSR2"):
+            if hasattr(signal, name):
+                signal.signal(getattr(signal, name), signal.SIG_IGN)
+
+
 def fail(message: str) -> NoReturn:
     """Print ``error: <message>`` as one line on stderr and exit with code 2."""
     sys.stdout.flush()
@@ -88,13 +105,17 @@ def hydra_entry(
             if {"-h", "--help"} & set(argv):
                 sys.stdout.write(help_text(config_name))
                 sys.exit(0)
-            with one_line_errors():
-                cls = _schema(schema)
-                _SCHEMA[:] = [cls]
-                if prepare is not None:
-                    sys.argv[1:] = _function(prepare)(argv)
-                _remember_run_dir(sys.argv[1:])
-                _hydra_main(config_name, cls, fn)()
+            try:
+                with one_line_errors():
+                    cls = _schema(schema)
+                    _SCHEMA[:] = [cls]
+                    if prepare is not None:
+                        sys.argv[1:] = _function(prepare)(argv)
+                    _remember_run_dir(sys.argv[1:])
+                    _hydra_main(config_name, cls, fn)()
+            except KeyboardInterrupt:  # Ctrl-C outside training's own handling (start-up, play)
+                print(f"interrupted: {config_name} stopped by Ctrl-C", file=sys.stderr)
+                sys.exit(130)
 
         return main
 

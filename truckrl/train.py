@@ -29,8 +29,9 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from truckrl.cli import hydra_entry
+from truckrl.cli import hydra_entry, workers_ignore_stop_signals
 
+workers_ignore_stop_signals(__name__)  # ParallelEnv workers: this process stops and closes them
 log = logging.getLogger("truckrl.train")
 
 
@@ -54,7 +55,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     from truckrl.agent.network import make_actor_critic, parameter_count
     from truckrl.agent.ppo import PPO
     from truckrl.agent.progress import Progress, stop_lines, stop_reason
-    from truckrl.agent.session import Counters, StopSignals, workers_ignore_signals, write_parent
+    from truckrl.agent.session import Counters, StopSignals, write_parent
     from truckrl.cli import git_revision, seed_everything
     from truckrl.run_logger import RunLogger, flatten
     from truckrl.task import make_task
@@ -65,10 +66,9 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     seed_everything(tc.seed)
     stop = stop or StopSignals()
 
-    # Create environment (workers ignore Ctrl-C: this process stops and closes them)
+    # Create environment
     c = tc.collector
-    with workers_ignore_signals():
-        env = make_env(tc.env, c.workers, c.num_envs, tc.seed, counters.iteration, tc.device)
+    env = make_env(tc.env, c.workers, c.num_envs, tc.seed, counters.iteration, tc.device)
     num_obs = env.observation_spec["observation"].shape[-1]
     num_beams = env.observation_spec["lidar"].shape[-1]
     task = make_task(tc.env)  # the task's vocabulary: reward terms and errors
@@ -213,11 +213,11 @@ def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
     from truckrl.agent.session import StopSignals, merged_config, plan_session
     from truckrl.configs import RESUME_OVERRIDES, TrainConfig
 
-    plan = plan_session(tc.resume, tc.overwrite, job_dir, explicit_dir)
-    if plan.state:
-        tc = merged_config(plan.state, asdict(tc), TrainConfig, RESUME_OVERRIDES, log)
     stop = StopSignals().install()  # from here on a signal stops at the next iteration boundary
     try:
+        plan = plan_session(tc.resume, tc.overwrite, job_dir, explicit_dir)
+        if plan.state:
+            tc = merged_config(plan.state, asdict(tc), TrainConfig, RESUME_OVERRIDES, log)
         return train(tc, plan.run_dir, plan.state, plan.parent, stop)
     finally:
         stop.restore()
