@@ -22,6 +22,7 @@ import functools
 import shutil
 import subprocess
 import sys
+import time
 import typing
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -35,7 +36,7 @@ _BEFORE: dict[Path, set[str]] = {}  # entries of a named run dir before Hydra wr
 _KEEP: dict[Path, Path] = {}  # a run dir that did not exist -> its nearest existing ancestor
 _OUTPUTS = "outputs"  # the root of the default run dirs (conf/*.yaml: hydra.run.dir)
 _SWEEP_ROOTS: list[tuple[Path, Path]] = []  # (where a sweep dir may appear, what existed above)
-_STARTED = __import__("time").time()
+_STARTED = time.time()  # a sweep dir older than this process is not its own
 _SCHEMA: list[type] = []  # the running entry's schema: error messages look fields up in it
 _FROM_TASK = "_truckrl_from_task"  # marks an exception the task raised (keeps its traceback)
 
@@ -46,7 +47,7 @@ def workers_ignore_stop_signals(module_name: str) -> None:
 
     A Ctrl-C reaches the whole process group, SLURM signals every process of a job: the trainer
     stops on them and closes its workers; a worker killed by the same signal would print a
-    traceback and stall the shutdown (21 s). The workers inherit nothing from the parent's
+    traceback and stall the shutdown. The workers inherit nothing from the parent's
     handlers, and a parent-side ``SIG_IGN`` while they start would drop signals meant for it.
     """
     if module_name == "__mp_main__":
