@@ -124,11 +124,13 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
         for p in paths:
             try:
                 ckpt.save_training_state(p, model=ac.model, ppo=ppo, curriculum=curriculum,
-                                 counters=asdict(counters), config_yaml=cfg_yaml, num_obs=num_obs,
-                                 num_beams=num_beams, source=source)  # fmt: skip
-            except OSError as e:  # full disk, lost permission: stop with the last good one intact
-                raise ckpt.CheckpointError(f"cannot write checkpoint {p} ({e.strerror or e}); the "
-                                      f"last good checkpoint is intact: {stop.last_checkpoint}") from None  # fmt: skip
+                                         counters=asdict(counters), config_yaml=cfg_yaml,
+                                         num_obs=num_obs, num_beams=num_beams, source=source)  # fmt: skip
+            except OSError as e:  # full disk, lost permission: stop; the last good one is intact
+                why = (
+                    f"{e.strerror or e}; the last good checkpoint is intact: {stop.last_checkpoint}"
+                )
+                raise ckpt.CheckpointError(f"cannot write checkpoint {p} ({why})") from None
         stop.last_checkpoint = str(paths[0])
 
     # Training loop
