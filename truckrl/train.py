@@ -8,16 +8,15 @@ Each iteration collects ``collector.workers x num_envs x steps_per_env`` frames,
 episodes to the curriculum in start order (:mod:`truckrl.agent.cohorts`; a promotion reaches
 every worker before the next collection), runs the PPO update and logs to ``<run_dir>/tb``.
 ``<run_dir>/checkpoints/last.pt`` is written every ``checkpoint.interval`` iterations and at the
-end. A run stops at ``stop_difficulty`` (default 6, the paper's goal), ``max_minutes`` (default
-60), ``total_frames``, or a signal (Ctrl-C, SIGTERM: at the next iteration boundary, with a
-checkpoint, exit 0; :mod:`truckrl.agent.session`), and its last lines say why and what to run next.
+end. A run stops at ``stop_difficulty`` (default 6, the paper's goal), ``max_minutes`` (60),
+``total_frames`` or a signal (at the next iteration boundary, with a checkpoint, exit 0;
+:mod:`truckrl.agent.session`); its last lines say why and what to run next.
 
 Resuming (``resume=<checkpoint or run dir>``) continues in the original run dir with the
-checkpoint's model, optimizer, learning rate, curriculum, counters and RNG states, and with its
-saved config except the keys in :data:`~truckrl.configs.RESUME_OVERRIDES`, which come from the
-command line; an older checkpoint branches into a new run dir. ``total_frames`` counts all
-sessions together; ``max_minutes`` limits this session. The envs restart with fresh episodes
-seeded from ``(seed, iteration)``: a faithful continuation, not a bit-identical one.
+checkpoint's state and saved config but for :data:`~truckrl.configs.RESUME_OVERRIDES` (from the
+command line); an older checkpoint branches into a new run dir. ``total_frames`` counts all
+sessions, ``max_minutes`` this one. The envs restart with fresh episodes seeded from ``(seed,
+iteration)``: a faithful continuation, not a bit-identical one.
 """
 
 from __future__ import annotations
