@@ -22,6 +22,7 @@ import functools
 import shutil
 import subprocess
 import sys
+import time
 import typing
 import warnings
 from collections.abc import Callable, Iterator
@@ -36,9 +37,26 @@ _BEFORE: dict[Path, set[str]] = {}  # entries of a named run dir before Hydra wr
 _KEEP: dict[Path, Path] = {}  # a run dir that did not exist -> its nearest existing ancestor
 _OUTPUTS = "outputs"  # the root of the default run dirs (conf/*.yaml: hydra.run.dir)
 _SWEEP_ROOTS: list[tuple[Path, Path]] = []  # (where a sweep dir may appear, what existed above)
-_STARTED = __import__("time").time()
+_STARTED = time.time()  # a sweep dir older than this process is not its own
 _SCHEMA: list[type] = []  # the running entry's schema: error messages look fields up in it
 _FROM_TASK = "_truckrl_from_task"  # marks an exception the task raised (keeps its traceback)
+
+
+def workers_ignore_stop_signals(module_name: str) -> None:
+    """Call at the top of an entry module: in the env workers that multiprocessing's spawn starts
+    from it (they run the entry module as ``__mp_main__`` first) ignore Ctrl-C, SIGTERM and SIGUSR2.
+
+    A Ctrl-C reaches the whole process group, SLURM signals every process of a job: the trainer
+    stops on them and closes its workers; a worker killed by the same signal would print a
+    traceback and stall the shutdown. The workers inherit nothing from the parent's
+    handlers, and a parent-side ``SIG_IGN`` while they start would drop signals meant for it.
+    """
+    if module_name == "__mp_main__":
+        import signal
+
+        for name in ("SIGINT", "SIGTERM", "SIGUSR2"):
+            if hasattr(signal, name):
+                signal.signal(getattr(signal, name), signal.SIG_IGN)
 
 
 def fail(message: str) -> NoReturn:
@@ -94,13 +112,17 @@ def hydra_entry(
             if {"-h", "--help"} & set(argv):
                 sys.stdout.write(help_text(config_name))
                 sys.exit(0)
-            with one_line_errors():
-                cls = _schema(schema)
-                _SCHEMA[:] = [cls]
-                if prepare is not None:
-                    sys.argv[1:] = _function(prepare)(argv)
-                _remember_run_dir(sys.argv[1:])
-                _hydra_main(config_name, cls, fn)()
+            try:
+                with one_line_errors():
+                    cls = _schema(schema)
+                    _SCHEMA[:] = [cls]
+                    if prepare is not None:
+                        sys.argv[1:] = _function(prepare)(argv)
+                    _remember_run_dir(sys.argv[1:])
+                    _hydra_main(config_name, cls, fn)()
+            except KeyboardInterrupt:  # Ctrl-C outside training's own handling (start-up, play)
+                print(f"interrupted: {config_name} stopped by Ctrl-C", file=sys.stderr)
+                sys.exit(130)
 
         return main
 

@@ -8,16 +8,15 @@ Each iteration collects ``collector.workers x num_envs x steps_per_env`` frames,
 episodes to the curriculum in start order (:mod:`truckrl.agent.cohorts`; a promotion reaches
 every worker before the next collection), runs the PPO update and logs to ``<run_dir>/tb``.
 ``<run_dir>/checkpoints/last.pt`` is written every ``checkpoint.interval`` iterations and at the
-end. A run stops at ``stop_difficulty`` (default 6, the paper's goal), ``max_minutes`` (default
-60), ``total_frames``, or a signal (Ctrl-C, SIGTERM: at the next iteration boundary, with a
-checkpoint, exit 0; :mod:`truckrl.agent.session`), and its last lines say why and what to run next.
+end. A run stops at ``stop_difficulty`` (default 6, the paper's goal), ``max_minutes`` (60),
+``total_frames`` or a signal (at the next iteration boundary, with a checkpoint, exit 0;
+:mod:`truckrl.agent.session`); its last lines say why and what to run next.
 
 Resuming (``resume=<checkpoint or run dir>``) continues in the original run dir with the
-checkpoint's model, optimizer, learning rate, curriculum, counters and RNG states, and with its
-saved config except the keys in :data:`~truckrl.configs.RESUME_OVERRIDES`, which come from the
-command line; an older checkpoint branches into a new run dir. ``total_frames`` counts all
-sessions together; ``max_minutes`` limits this session. The envs restart with fresh episodes
-seeded from ``(seed, iteration)``: a faithful continuation, not a bit-identical one.
+checkpoint's state and saved config but for :data:`~truckrl.configs.RESUME_OVERRIDES` (from the
+command line); an older checkpoint branches into a new run dir. ``total_frames`` counts all
+sessions, ``max_minutes`` this one. The envs restart with fresh episodes seeded from ``(seed,
+iteration)``: a faithful continuation, not a bit-identical one.
 """
 
 from __future__ import annotations
@@ -29,8 +28,9 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from truckrl.cli import hydra_entry
+from truckrl.cli import hydra_entry, workers_ignore_stop_signals
 
+workers_ignore_stop_signals(__name__)  # ParallelEnv workers: this process stops and closes them
 log = logging.getLogger("truckrl.train")
 
 
@@ -55,7 +55,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     from truckrl.agent.network import make_actor_critic, parameter_count
     from truckrl.agent.ppo import PPO
     from truckrl.agent.progress import Progress, stop_lines, stop_reason
-    from truckrl.agent.session import Counters, StopSignals, workers_ignore_signals, write_parent
+    from truckrl.agent.session import Counters, StopSignals, write_parent
     from truckrl.cli import git_revision, seed_everything
     from truckrl.run_logger import RunLogger, flatten
     from truckrl.task import make_task
@@ -66,10 +66,9 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     seed_everything(tc.seed)
     stop = stop or StopSignals()
 
-    # Create environment (workers ignore Ctrl-C: this process stops and closes them)
+    # Create environment
     c = tc.collector
-    with workers_ignore_signals():
-        env = make_env(tc.env, c.workers, c.num_envs, tc.seed, counters.iteration, tc.device)
+    env = make_env(tc.env, c.workers, c.num_envs, tc.seed, counters.iteration, tc.device)
     num_obs = env.observation_spec["observation"].shape[-1]
     num_beams = env.observation_spec["lidar"].shape[-1]
     task = make_task(tc.env)  # the task's vocabulary: reward terms and errors
@@ -125,11 +124,13 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
         for p in paths:
             try:
                 ckpt.save_training_state(p, model=ac.model, ppo=ppo, curriculum=curriculum,
-                                 counters=asdict(counters), config_yaml=cfg_yaml, num_obs=num_obs,
-                                 num_beams=num_beams, source=source)  # fmt: skip
-            except OSError as e:  # full disk, lost permission: stop with the last good one intact
-                raise ckpt.CheckpointError(f"cannot write checkpoint {p} ({e.strerror or e}); the "
-                                      f"last good checkpoint is intact: {stop.last_checkpoint}") from None  # fmt: skip
+                                         counters=asdict(counters), config_yaml=cfg_yaml,
+                                         num_obs=num_obs, num_beams=num_beams, source=source)  # fmt: skip
+            except OSError as e:  # full disk, lost permission: stop; the last good one is intact
+                why = (
+                    f"{e.strerror or e}; the last good checkpoint is intact: {stop.last_checkpoint}"
+                )
+                raise ckpt.CheckpointError(f"cannot write checkpoint {p} ({why})") from None
         stop.last_checkpoint = str(paths[0])
 
     # Training loop
@@ -221,11 +222,11 @@ def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
     from truckrl.agent.session import StopSignals, merged_config, plan_session
     from truckrl.configs import RESUME_OVERRIDES, TrainConfig
 
-    plan = plan_session(tc.resume, tc.overwrite, job_dir, explicit_dir)
-    if plan.state:
-        tc = merged_config(plan.state, asdict(tc), TrainConfig, RESUME_OVERRIDES, log)
     stop = StopSignals().install()  # from here on a signal stops at the next iteration boundary
     try:
+        plan = plan_session(tc.resume, tc.overwrite, job_dir, explicit_dir)
+        if plan.state:
+            tc = merged_config(plan.state, asdict(tc), TrainConfig, RESUME_OVERRIDES, log)
         return train(tc, plan.run_dir, plan.state, plan.parent, stop)
     finally:
         stop.restore()

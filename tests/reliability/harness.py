@@ -59,6 +59,7 @@ def assert_consistent(run_dir: Path, batch: int = BATCH) -> dict:
 
 #: Where a signal can be sent from inside a session, and the function patched to send it.
 PHASES = {
+    "start": ("truckrl.agent.collection", "make_env"),
     "collect": ("truckrl.env.TruckEnv", "_step"),
     "update": ("torch.optim.Adam", "step"),
     "curriculum": ("truckrl.agent.curriculum.Curriculum", "update"),

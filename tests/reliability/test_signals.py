@@ -38,9 +38,9 @@ from truckrl.agent.checkpoint import load_checkpoint
 #: Seeded "random moments": (signal, phase, occurrence of the phase's function).
 RNG = random.Random(12)
 MOMENTS = [
-    (RNG.choice(list(SIGNALS)), phase, RNG.randint(1, 3 * calls))
-    for phase, calls in [("collect", 16), ("update", 4), ("update", 4), ("curriculum", 1),
-                         ("save", 1), ("log", 1)]
+    (RNG.choice(list(SIGNALS)), phase, RNG.randint(1, max(1, 3 * calls)))
+    for phase, calls in [("start", 0), ("collect", 16), ("update", 4), ("update", 4),
+                         ("curriculum", 1), ("save", 1), ("log", 1)]
 ]  # fmt: skip
 
 

@@ -72,7 +72,9 @@ class Progress:
     ) -> None:
         self.total_frames, self.max_minutes = total_frames, max_minutes
         self.stop_difficulty = stop_difficulty
-        self.bar = tqdm(total=1000, dynamic_ncols=True, disable=not enabled, file=sys.stderr)
+        first = "first batch (compiles first with env.compile=true)"
+        self.bar = tqdm(total=1000, dynamic_ncols=True, disable=not enabled, file=sys.stderr,
+                        bar_format=f"starting |{{bar}}| {first}")  # fmt: skip
 
     def update(
         self, frames: int, minutes: float, difficulty: float, ema: float, fps: float

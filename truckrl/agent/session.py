@@ -7,9 +7,9 @@ While a batch is being collected, which changes nothing that is saved, the first
 ``KeyboardInterrupt`` at once and the partial batch is dropped: stopping does not wait for a whole
 collection (or the first compile). A second signal exits at once (code 128 + signal) after killing
 the env workers; the last checkpoint is intact (atomic writes) and a half-written temp file is
-removed at the next start. ParallelEnv workers start with these signals ignored
-(:func:`workers_ignore_signals`): a Ctrl-C to the process group reaches only the trainer, which
-closes them. Under submitit, SIGUSR2 hands over to submitit's own handler (requeue the job) once
+removed at the next start. ParallelEnv workers ignore these signals
+(:func:`truckrl.cli.workers_ignore_stop_signals`): a Ctrl-C to the process group stops only the
+trainer, which closes them. Under submitit, SIGUSR2 hands over to submitit's own handler (requeue the job) once
 the checkpoint is written.
 
 **Run dirs** (:func:`plan_session`). A run dir holding ``checkpoints/last.pt`` is only ever
@@ -123,27 +123,6 @@ def ignore_stop_signals() -> None:
     if threading.current_thread() is threading.main_thread():
         for s in STOP_SIGNALS:
             signal.signal(s, signal.SIG_IGN)
-
-
-@contextlib.contextmanager
-def workers_ignore_signals() -> Iterator[None]:
-    """Start processes inside the block with :data:`STOP_SIGNALS` ignored (inherited across
-    fork and exec); signals arriving meanwhile stay pending for this process's handlers.
-
-    The signals are blocked while ignored: Linux queues a blocked signal even when its action is
-    to ignore it, so nothing sent during the worker start is lost.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
-    previous = {s: signal.signal(s, signal.SIG_IGN) for s in STOP_SIGNALS}
-    try:
-        yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
 
 
 # ---------------------------------------------------------------------------------- run dirs
