@@ -82,6 +82,8 @@ def help_text(config_name: str) -> str:
     import yaml
 
     path = Path(CONFIG_PATH) / "hydra" / "help" / f"{config_name}.yaml"
+    if not path.is_file():  # an entry point without a template: say where its fields are
+        return f"python -m truckrl.{config_name} [OVERRIDE ...]\nFields: truckrl/conf/{config_name}.yaml\n"
     return yaml.safe_load(path.read_text())["template"].rstrip() + "\n"
 
 
