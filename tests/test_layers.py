@@ -18,7 +18,7 @@ ALLOWED = {
     "agent": {"sim", "task", "env"},
     "viz": {"sim", "task"},  # drawing reads states; sensor placement and body outlines only
 }
-ENTRY = {"train", "evaluate", "play", "runner", "cli", "configs", "run_logger", "bench"}
+ENTRY = {"train", "evaluate", "play", "plan", "runner", "cli", "configs", "run_logger", "bench"}
 
 
 def layer_of(path: Path) -> str:
