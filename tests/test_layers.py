@@ -18,7 +18,18 @@ ALLOWED = {
     "agent": {"sim", "task", "env"},
     "viz": {"sim", "task"},  # drawing reads states; sensor placement and body outlines only
 }
-ENTRY = {"train", "evaluate", "play", "export", "runner", "cli", "configs", "run_logger", "bench"}
+ENTRY = {
+    "train",
+    "evaluate",
+    "play",
+    "plan",
+    "export",
+    "runner",
+    "cli",
+    "configs",
+    "run_logger",
+    "bench",
+}
 
 
 def layer_of(path: Path) -> str:

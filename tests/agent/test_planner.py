@@ -1,0 +1,120 @@
+"""The CEM planner baseline: solves an easy scene (confirmed by replay), reports a blocked one
+unsolved, returns ``evaluate_policy``'s result keys, and its CLI rejects bad options."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict.nn import TensorDictModule
+
+from tests.conftest import run_cli
+from truckrl import plan as plan_cli
+from truckrl.agent.planner import PlannerConfig, knot_matrix, plan_episodes, plan_states, replay
+from truckrl.agent.rollout import evaluate_policy
+from truckrl.sim.vehicle import VehicleConfig
+from truckrl.task import EnvConfig, make_task
+
+#: Eager (no compile), tiny budget: one scene, 48 candidates.
+FAST = {"samples": 48, "iterations": 3, "scenes_per_batch": 1, "compile": False}
+ENV = EnvConfig(max_steps=120)
+
+
+def straight_scene(wall: bool = False):
+    """One mid-range truck on a 12 m straight road along +x, goal 30 m ahead in its lane; with
+    ``wall``, a segment across the whole road 15 m ahead."""
+    bounds = VehicleConfig().bounds()
+    params = {k: torch.tensor([0.5 * (lo + hi)]) for k, (lo, hi) in bounds.items()}
+    segments = torch.tensor(
+        [[[-100.0, -6.0, 100.0, -6.0], [-100.0, 6.0, 100.0, 6.0], [15.0, -6.0, 15.0, 6.0]]]
+    )
+    mask = torch.tensor([[True, True, wall]])
+    scene = {
+        "start": torch.tensor([[0.0, -3.0, 0.0]]),
+        "goal": torch.tensor([[30.0, -3.0, 0.0]]),
+        "segments": segments * mask[..., None],
+        "mask": mask,
+        "kind": torch.zeros(1, 3, dtype=torch.int8),
+    }
+    return make_task(ENV).initial_state(params, scene, torch.device("cpu"))
+
+
+def test_knot_matrix_interpolates_linearly():
+    w = knot_matrix(5, 3)
+    assert torch.allclose(w.sum(-1), torch.ones(5))
+    assert torch.allclose(
+        w @ torch.tensor([0.0, 1.0, 4.0]), torch.tensor([0.0, 0.5, 1.0, 2.5, 4.0])
+    )
+    assert torch.equal(knot_matrix(4, 1), torch.ones(4, 1))
+
+
+def test_solves_easy_scene_and_replay_reproduces_it():
+    state = straight_scene()
+    res, (tol_m, tol_deg), errors = plan_states(ENV, state, 2.0, FAST)
+    assert tol_m == pytest.approx(7.5) and tol_deg == pytest.approx(15.0)
+    assert bool(res["success"][0]) and bool(res["planned_success"][0])
+    assert not res["replay_mismatch"][0]
+    n = int(res["length"][0])
+    assert 1 <= n < ENV.max_steps and res["pos_error"][0] <= tol_m
+    # the reported action sequence, replayed again, gives the same outcome and final errors
+    again = replay(ENV, state, res["actions"], 2.0)
+    assert bool(again["success"][0]) and int(again["length"][0]) == n
+    for q in errors:
+        assert again[q.key][0] == pytest.approx(float(res[q.key][0]), abs=1e-5)
+    assert (res["actions"][0, n:] == 0).all() and res["actions"].abs().max() <= 1.0
+
+
+def test_wall_across_the_road_is_unsolved():
+    res, _, _ = plan_states(ENV, straight_scene(wall=True), 2.0, {**FAST, "iterations": 2})
+    assert not bool(res["success"][0]) and not bool(res["planned_success"][0])
+    assert bool(res["collision"][0] | res["truncated"][0])
+    assert res["best_ratio"][0] > 1.0  # never within the tolerances
+
+
+def test_result_keys_match_evaluate_policy():
+    env = EnvConfig(max_steps=6)
+    actor = TensorDictModule(
+        lambda obs: torch.zeros(obs.shape[0], 2), in_keys=["observation"], out_keys=["action"]
+    )
+    ev, ev_tol, ev_err = evaluate_policy(actor, env, 3.0, episodes=3, seed=11)
+    cfg = {**FAST, "samples": 4, "iterations": 1}
+    res, tol, err = plan_episodes(env, 3.0, episodes=3, seed=11, config=cfg, indices=[0, 2])
+    assert tol == pytest.approx(ev_tol) and err == ev_err
+    for k, v in ev.items():
+        assert k in res and res[k].dtype == v.dtype and res[k].shape == (2,), k
+    assert res["scene_index"].tolist() == [0, 2]
+    assert set(res["route"]) >= {"route", "turn_angle", "start_road_width", "goal_distance"}
+    assert "trailer_wheelbase" in res["params"] and res["actions"].shape == (2, 6, 2)
+
+
+def test_bad_planner_config_is_rejected():
+    from truckrl.sim.validation import ConfigError
+
+    with pytest.raises(ConfigError, match="planner.samples"):
+        PlannerConfig(samples=1)
+    with pytest.raises(ConfigError, match="steer_axis"):
+        PlannerConfig(steer_axis="space")
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--episodes", "0"], "--episodes"),
+        (["--planner", "samples=1"], "planner.samples"),
+        (["--env", "max_steps=-3"], "env.max_steps"),
+        (["--env", "nonsense"], "KEY=VALUE"),
+        (["--seed", "-1"], "--seed"),
+    ],
+)
+def test_bad_options_return_2_with_one_line(args, needle, capsys):
+    assert plan_cli.main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and needle in err and len(err.splitlines()) == 1
+
+
+@pytest.mark.e2e
+def test_cli_bad_options_exit_2_with_one_line():
+    proc = run_cli("plan", "--difficulty", "lots", timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    err = proc.stderr.strip()
+    assert err.startswith("error:") and "--difficulty" in err and "Traceback" not in err
+    assert len(err.splitlines()) == 1
