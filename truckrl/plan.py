@@ -35,7 +35,7 @@ from truckrl.agent.categories import episode_bins, format_category_table, summar
 from truckrl.agent.planner import PlannerConfig, category_info, plan_episodes
 from truckrl.agent.rollout import summarize
 from truckrl.cli import git_revision
-from truckrl.sim.scene import ROUTE_NAMES
+from truckrl.sim.scene import ROUTE_KEYS, ROUTE_NAMES
 from truckrl.sim.validation import ConfigError, build, check_range
 from truckrl.task import MAX_DIFFICULTY, OUTCOMES, EnvConfig
 
@@ -214,7 +214,7 @@ def _per_episode(results: dict, errors) -> list[dict]:
         for k in keys:
             v = results[k][j].item()
             e[k] = v if not isinstance(v, float) or math.isfinite(v) else None
-        e["route"] = {k: v[j].item() for k, v in results["route"].items()}
+        e["route"] = {k: results[k][j].item() for k in ROUTE_KEYS if k in results}
         e["params"] = {k: v[j].item() for k, v in results["params"].items()}
         e["actions"] = results["actions"][j, : int(results["length"][j])].tolist()
         eps.append(e)

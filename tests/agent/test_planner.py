@@ -82,7 +82,8 @@ def test_result_keys_match_evaluate_policy():
     for k, v in ev.items():
         assert k in res and res[k].dtype == v.dtype and res[k].shape == (2,), k
     assert res["scene_index"].tolist() == [0, 2]
-    assert set(res["route"]) >= {"route", "turn_angle", "start_road_width", "goal_distance"}
+    assert set(res) >= {"route", "turn_angle", "start_road_width", "goal_distance"}
+    assert torch.equal(res["route"], ev["route"][[0, 2]])
     assert "trailer_wheelbase" in res["params"] and res["actions"].shape == (2, 6, 2)
 
 

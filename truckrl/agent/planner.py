@@ -70,9 +70,11 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
+from truckrl.agent.categories import trailer_length
 from truckrl.env import TruckEnv
 from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES, MODE_TABLE
 from truckrl.sim.validation import ConfigError, build, check_range, param, validate
+from truckrl.sim.scene import ROUTE_KEYS
 from truckrl.sim.vehicle import PARAM_KEYS
 from truckrl.task import MAX_DIFFICULTY, OUTCOMES, EnvConfig, Quantity, make_task, shown
 
@@ -628,8 +630,8 @@ def plan_states(
         "replay_mismatch" (it did, but no replay did), "best_ratio" (the largest error /
         tolerance ratio at the closest approach of the best candidate: <= 1 within the
         tolerances), "iterations" and "attempts" (CEM), "actions" ``[E, T, 2]`` (the reported
-        sequence, zeros after its end), "route" and "params" (``{key: [E]}``, for
-        :func:`truckrl.agent.categories.episode_bins`) and the totals "rollouts", "plan_seconds".
+        sequence, zeros after its end), "params" (the vehicle parameters, ``{key: [E]}``) and
+        the totals "rollouts", "plan_seconds".
     """
     planner = Planner(env_cfg, config, device)
     cfg = planner.env_cfg
@@ -662,10 +664,13 @@ def plan_states(
     results["attempts"] = plan["attempts"]
     results["rollouts"] = plan["rollouts"]
     results["plan_seconds"] = plan["seconds"]
-    results["route"] = (
-        {k: v.cpu() for k, v in states["route"].items()} if "route" in states.keys() else {}
-    )
     results["params"] = {k: states["params", k].cpu() for k in PARAM_KEYS}
+    # The scene keys of evaluate_policy's results, flat and in its dtypes.
+    results["trailer_length"] = trailer_length(results["params"])
+    if "route" in states.keys():
+        for k in ROUTE_KEYS:
+            v = states["route", k].cpu()
+            results[k] = v.long() if k == "route" else v
     task = planner.task
     tol_pos, tol_ang = task.tolerances(torch.tensor([float(difficulty)]))
     tolerance = (float(tol_pos[0]), math.degrees(float(tol_ang[0])))
@@ -727,4 +732,4 @@ def plan_episodes(
 
 def category_info(results: dict[str, Any]) -> dict[str, Tensor]:
     """Per-episode inputs of :func:`truckrl.agent.categories.episode_bins` from plan results."""
-    return {**results["route"], **results["params"]}
+    return {k: results[k] for k in ("trailer_length", *ROUTE_KEYS) if k in results}
