@@ -8,6 +8,7 @@ import json
 import pytest
 import torch
 
+import truckrl.agent.rollout as rollout_module
 import truckrl.evaluate as evaluate_module
 from tests.conftest import run_cli
 from truckrl.agent.categories import (
@@ -147,7 +148,7 @@ def test_output_is_checked_before_the_episodes_run(tiny_checkpoint, tmp_path, mo
     def fail(*args, **kwargs):
         raise AssertionError("episodes ran before the output check")
 
-    monkeypatch.setattr(evaluate_module, "evaluate_policy", fail)
+    monkeypatch.setattr(rollout_module, "evaluate_policy", fail)
     ec = EvaluateConfig(checkpoint=str(run), episodes=2, output=str(tmp_path / "eval.json"))
     with pytest.raises(ConfigError, match="cannot write"):
         evaluate(ec)

@@ -92,6 +92,17 @@ def help_text(config_name: str) -> str:
 warnings.filterwarnings("ignore", message=r"provider=hydra\.searchpath in main, path=conf")
 
 
+def exit_on_help(config_name: str) -> None:
+    """Print the help template of ``config_name`` and exit 0 when the command line asks for help.
+
+    An entry module whose own imports are heavy calls this first, under ``if __name__ ==
+    "__main__"``, so that ``--help`` answers before torch is imported.
+    """
+    if {"-h", "--help"} & set(sys.argv[1:]):
+        sys.stdout.write(help_text(config_name))
+        sys.exit(0)
+
+
 def hydra_entry(
     config_name: str,
     schema: type | str,
@@ -111,9 +122,7 @@ def hydra_entry(
         @functools.wraps(fn)
         def main() -> None:
             argv = sys.argv[1:]
-            if {"-h", "--help"} & set(argv):
-                sys.stdout.write(help_text(config_name))
-                sys.exit(0)
+            exit_on_help(config_name)
             try:
                 with one_line_errors():
                     cls = _schema(schema)

@@ -16,12 +16,11 @@ import sys
 from dataclasses import dataclass, field
 from typing import Any
 
+from truckrl.agent.config import ModelConfig, PPOConfig
 from truckrl.agent.curriculum import CurriculumConfig
-from truckrl.agent.network import ModelConfig
-from truckrl.agent.ppo import PPOConfig
-from truckrl.runner import ViewConfig
 from truckrl.sim.validation import ConfigError, param, spec_table, validate
 from truckrl.task import MAX_DIFFICULTY, EnvConfig, task_class, task_names
+from truckrl.viz.config import ViewConfig
 from truckrl.viz.keyboard import KeyboardConfig
 
 SEED_MAX = 2**62

@@ -22,31 +22,24 @@ import os
 import sys
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig
 
-from truckrl.agent.categories import episode_bins, format_category_table, summarize_by_category
-from truckrl.agent.checkpoint import CHECKPOINT_DIR
-from truckrl.agent.policy import load_policy
-from truckrl.agent.rollout import evaluate_policy, summarize
 from truckrl.cli import hydra_entry
-from truckrl.configs import EvaluateConfig
-from truckrl.sim.scene import ROUTE_KEYS
-from truckrl.sim.validation import ConfigError
-from truckrl.task import OUTCOMES, Quantity
+
+if TYPE_CHECKING:
+    from truckrl.configs import EvaluateConfig
+    from truckrl.task import Quantity
 
 #: Folder of a run dir that default evaluation outputs go to.
 EVAL_DIR = "eval"
 
 
-def run_dir_of(checkpoint: Path) -> Path:
-    """The run dir of a checkpoint file (``<run>/checkpoints/last.pt`` -> ``<run>``)."""
-    parent = checkpoint.parent
-    return parent.parent if parent.name == CHECKPOINT_DIR else parent
-
-
 def default_output(checkpoint: Path, difficulty: float, seed: int) -> Path:
     """``<run dir>/eval/<difficulty>-<seed>.json`` (difficulty as ``2`` or ``2.5``)."""
+    from truckrl.agent.session import run_dir_of
+
     return run_dir_of(checkpoint) / EVAL_DIR / f"{difficulty:g}-{seed}.json"
 
 
@@ -56,6 +49,8 @@ def check_writable(path: Path) -> None:
     The JSON is written by replacing ``path`` with a file made in the same folder, so a writable
     folder is what the final write needs.
     """
+    from truckrl.sim.validation import ConfigError
+
     try:
         if path.is_dir():
             raise IsADirectoryError(21, "is a directory")
@@ -86,6 +81,12 @@ def evaluate(ec: EvaluateConfig) -> dict:
         ConfigError: the output cannot be written: before any episode runs when the check finds
             it, or after printing the results when the final write fails.
     """
+    from truckrl.agent.categories import episode_bins, format_category_table, summarize_by_category
+    from truckrl.agent.policy import load_policy
+    from truckrl.agent.rollout import evaluate_policy, summarize
+    from truckrl.sim.scene import ROUTE_KEYS
+    from truckrl.sim.validation import ConfigError
+
     policy = load_policy(ec.checkpoint, ec.device)
     difficulty = policy.difficulty if ec.difficulty is None else ec.difficulty
     output = Path(ec.output) if ec.output else default_output(policy.path, difficulty, ec.seed)
@@ -124,6 +125,8 @@ def evaluate(ec: EvaluateConfig) -> dict:
 
 
 def print_table(s: dict, errors: tuple[Quantity, ...]) -> None:
+    from truckrl.task import OUTCOMES
+
     print(
         f"{s['episodes']} episodes at difficulty {s['difficulty']} "
         f"(tolerance {s['tolerance_position_m']:.3g} m, {s['tolerance_heading_deg']:.3g} deg)"
@@ -135,7 +138,7 @@ def print_table(s: dict, errors: tuple[Quantity, ...]) -> None:
         print(f"{f'{q.key} [{q.shown_unit}]':<30}{s[f'{key}_mean']:>10.3f}{s[f'{key}_p95']:>10.3f}")
 
 
-@hydra_entry("evaluate", EvaluateConfig)
+@hydra_entry("evaluate", "EvaluateConfig")
 def main(ec: EvaluateConfig, raw: DictConfig) -> None:
     evaluate(ec)
 

@@ -23,6 +23,11 @@ exporter, prints one line and exits with code 2.
 
 from __future__ import annotations
 
+if __name__ == "__main__":  # answer --help before the imports below load torch
+    from truckrl.cli import exit_on_help
+
+    exit_on_help("export")
+
 import contextlib
 import importlib.util
 import json
@@ -37,9 +42,9 @@ import torch
 from omegaconf import DictConfig
 from torch import Tensor, nn
 
-from truckrl.agent.checkpoint import CHECKPOINT_DIR
 from truckrl.agent.network import GaussianHead, TwoBranchTrunk
 from truckrl.agent.policy import LoadedPolicy, load_policy
+from truckrl.agent.session import run_dir_of
 from truckrl.cli import hydra_entry
 from truckrl.configs import structured
 from truckrl.sim.control import commanded
@@ -252,7 +257,7 @@ def quiet_exporter():
 
 def default_out(loaded: LoadedPolicy, fmt: str) -> Path:
     ckpt = loaded.path
-    run_dir = ckpt.parent.parent if ckpt.parent.name == CHECKPOINT_DIR else ckpt.parent
+    run_dir = run_dir_of(ckpt)
     return run_dir / "export" / f"policy{SUFFIX[fmt]}"
 
 

@@ -33,9 +33,10 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from truckrl.env import TruckEnv
 from truckrl.sim.control import ControlConfig, commanded
-from truckrl.sim.validation import check_choice, param, validate
+from truckrl.sim.validation import check_choice
 from truckrl.sim.vehicle import truck_corners
 from truckrl.task import MAX_DIFFICULTY, OUTCOMES, shown_float
+from truckrl.viz.config import ViewConfig
 from truckrl.viz.draw import COLORS, draw_state
 from truckrl.viz.keyboard import (
     DRIVE_KEYS,
@@ -57,24 +58,6 @@ ActionSource = Callable[[TensorDictBase, frozenset[str]], Tensor]
 
 class EndOfInput(Exception):
     """An action source or input script has nothing more to play."""
-
-
-@dataclass(frozen=True)
-class ViewConfig:
-    """Camera and frame layout (``view.*``)."""
-
-    follow: bool = param(
-        False, doc="false: fixed camera on the start truck and the goal; true: follow the truck"
-    )
-    size_px: int = param(640, lo=64, hi=4096, unit="px", doc="side of the bird's-eye view")
-    half_extent: float = param(
-        40.0, lo=1.0, hi=1e4, unit="m", doc="half the view side (at least half start-goal + margin)"
-    )
-    margin: float = param(15.0, lo=0.0, hi=1e4, unit="m", doc="space around start and goal")
-    panel_px: int = param(340, lo=0, hi=4096, unit="px", doc="width of the HUD panel (0: none)")
-
-    def __post_init__(self) -> None:
-        validate(self, "view")
 
 
 # ---------------------------------------------------------------------------------- sources

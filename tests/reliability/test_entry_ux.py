@@ -3,6 +3,7 @@ HPARAMS values, log files with content, no stray output dirs, and the start-up t
 
 from __future__ import annotations
 
+import ast
 import logging
 import os
 import statistics
@@ -126,3 +127,29 @@ def test_start_up_time_of_help():
     help_s = median_seconds("truckrl.train", "--help")
     print(f"\nstart-up: train --help {help_s:.2f} s (median of 3)")
     assert help_s < 3.0  # no torch: measured 0.1 s
+
+
+def heavy_modules_after(code: str) -> set[str]:
+    """Top-level packages among torch, tensordict and torchrl that ``code`` left imported."""
+    probe = f"{code}\nimport sys\nprint(sorted({{m.split('.')[0] for m in sys.modules}}))"
+    out = subprocess.run(
+        [sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, env=ENV
+    )
+    assert out.returncode == 0, out.stderr
+    return set(ast.literal_eval(out.stdout.strip().splitlines()[-1])) & {"torch", "tensordict", "torchrl"}
+
+
+@pytest.mark.parametrize("entry", ["train", "evaluate", "play", "export"])
+def test_help_imports_no_torch(entry):
+    code = (
+        f"import runpy, sys\nsys.argv = ['truckrl.{entry}', '--help']\n"
+        f"try:\n    runpy.run_module('truckrl.{entry}', run_name='__main__')\n"
+        "except SystemExit as e:\n    assert e.code == 0, e.code"
+    )
+    assert heavy_modules_after(code) == set()
+
+
+def test_config_schemas_import_no_tensordict_or_torchrl():
+    # A rejected value is reported after composing and validating these schemas: keeping
+    # tensordict (which loads torch._dynamo) and torchrl out of that path halves start-up.
+    assert heavy_modules_after("import truckrl.configs") == {"torch"}

@@ -32,59 +32,12 @@ from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictModule
 from torch import Tensor, nn
 from torchrl.modules import ActorValueOperator, IndependentNormal, ProbabilisticActor, ValueOperator
 
-from truckrl.sim.validation import ConfigError, param, validate
+from truckrl.agent.config import ModelConfig
+from truckrl.sim.validation import ConfigError
 
 OBS_KEY = "observation"
 LIDAR_KEY = "lidar"
 HIDDEN_KEY = "hidden"
-
-
-@dataclass(frozen=True)
-class ModelConfig:
-    """Sizes of the two-branch network (``model.*``; the defaults are the paper's)."""
-
-    numeric_hidden: tuple[int, ...] = param(
-        (128, 64), lo=1, hi=1e6, unit="-", doc="widths of the numeric MLP layers", source="paper"
-    )
-    cnn_channels: tuple[int, ...] = param(
-        (2, 4),
-        lo=1,
-        hi=1e4,
-        min_len=0,
-        unit="-",
-        doc="output channels of each LiDAR conv layer (none: raw ranges)",
-        source="paper",
-    )
-    kernel_size: int = param(
-        5,
-        lo=1,
-        hi=101,
-        unit="beams",
-        doc="conv kernel size; odd, so circular padding is symmetric",
-        source="paper",
-    )
-    stride: int = param(2, lo=1, hi=16, unit="beams", doc="conv stride", source="paper")
-    fusion_dim: int = param(
-        64, lo=1, hi=1e6, unit="-", doc='width of the fused trunk output "hidden"', source="paper"
-    )
-    init_std: float = param(
-        0.5,
-        lo=0.0,
-        lo_open=True,
-        hi=100.0,
-        unit="action units",
-        doc="initial std of the Gaussian policy",
-        source="paper",
-    )
-    # small, so that the first actions are set by the exploration noise, not by random weights
-    actor_init_gain: float = param(
-        0.01, lo=0.0, lo_open=True, hi=10.0, unit="-", doc="scale of the initial actor-mean weights"
-    )
-
-    def __post_init__(self) -> None:
-        validate(self, "model")
-        if self.kernel_size % 2 != 1:
-            raise ConfigError(f"model.kernel_size = {self.kernel_size} must be odd")
 
 
 def conv_out_len(length: int, kernel_size: int, stride: int) -> int:

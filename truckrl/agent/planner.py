@@ -73,8 +73,8 @@ from torch import Tensor
 from truckrl.agent.categories import trailer_length
 from truckrl.env import TruckEnv
 from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES, MODE_TABLE
-from truckrl.sim.validation import ConfigError, build, check_range, param, validate
 from truckrl.sim.scene import ROUTE_KEYS
+from truckrl.sim.validation import ConfigError, build, check_range, param, validate
 from truckrl.sim.vehicle import PARAM_KEYS
 from truckrl.task import MAX_DIFFICULTY, OUTCOMES, EnvConfig, Quantity, make_task, shown
 

@@ -25,10 +25,9 @@ shares is final here: :meth:`Task.step` (control + kinematics), :meth:`Task.outc
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import torch
-from tensordict import TensorDict
 from torch import Tensor
 
 from truckrl.sim.collision import truck_collides
@@ -38,6 +37,9 @@ from truckrl.sim.lidar import beam_angles, lidar_scan
 from truckrl.sim.vehicle import PARAM_KEYS, jackknifed, kinematics_step, normalized_params
 from truckrl.task.config import SENSOR_SCALE, EnvConfig, TaskConfig
 from truckrl.task.schema import Quantity
+
+if TYPE_CHECKING:  # imported where a state is built: config-only imports stay light
+    from tensordict import TensorDict
 
 #: Size of the numeric observation every task starts with (paper: "26 scalars").
 NUM_FEATURES = 26
@@ -284,6 +286,8 @@ class Task:
             scene: ``pose [m, 3]`` start (rear axle, trailer aligned), ``goal [m, 3]``,
                 ``segments``, ``mask``, ``kind`` and ``route`` (a mapping of ``[m]`` tensors).
         """
+        from tensordict import TensorDict
+
         m = scene["goal"].shape[0]
         zeros = torch.zeros(m, device=device)
         pose = torch.cat((scene["start"], zeros[:, None]), dim=-1)

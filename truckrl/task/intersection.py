@@ -14,10 +14,9 @@ same road or across a crossing, through parked obstacles, within tightening tole
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
-from tensordict import TensorDict
 from torch import Tensor
 
 from truckrl.sim.geometry import wrap_angle
@@ -27,6 +26,9 @@ from truckrl.sim.vehicle import sample_vehicle_params
 from truckrl.task.base import Task
 from truckrl.task.config import TaskConfig
 from truckrl.task.schema import Quantity
+
+if TYPE_CHECKING:
+    from tensordict import TensorDict
 
 
 @dataclass
