@@ -78,12 +78,46 @@ def save_checkpoint(path: str | os.PathLike, state: dict[str, Any]) -> Path:
     return path
 
 
+#: ``checkpoint=pretrained[:TASK]``: the trained policies that ship inside the package
+#: (``truckrl/pretrained/<task>.pt``; how each was made: ``truckrl/pretrained/README.md``).
+PRETRAINED_PREFIX = "pretrained"
+PRETRAINED_DIR = Path(__file__).resolve().parent.parent / "pretrained"
+PRETRAINED_DEFAULT = "intersection"
+
+
+def pretrained_names() -> list[str]:
+    """Tasks with a shipped policy (``truckrl/pretrained/<task>.pt``)."""
+    return sorted(p.stem for p in PRETRAINED_DIR.glob("*.pt"))
+
+
+def pretrained_path(spec: str) -> Path | None:
+    """The shipped file named by ``pretrained`` / ``pretrained:<task>``, or None for other specs.
+
+    Raises:
+        CheckpointError: ``pretrained:<task>`` names no shipped policy.
+    """
+    head, sep, name = spec.partition(":")
+    if head != PRETRAINED_PREFIX:
+        return None
+    name = name if sep else PRETRAINED_DEFAULT
+    p = PRETRAINED_DIR / f"{name}.pt"
+    if not p.is_file():
+        raise CheckpointError(
+            f"checkpoint={spec}: no shipped policy {name!r} (shipped: {pretrained_names()})"
+        )
+    return p
+
+
 def resolve_checkpoint(path: str | os.PathLike) -> Path:
-    """Map a checkpoint file or a run dir (``<dir>/checkpoints/last.pt``) to the file.
+    """Map a checkpoint file, a run dir (``<dir>/checkpoints/last.pt``) or
+    ``pretrained[:<task>]`` (a policy shipped in the package) to the file.
 
     Raises:
         CheckpointError: when nothing is there.
     """
+    shipped = pretrained_path(str(path)) if not Path(path).exists() else None
+    if shipped is not None:
+        return shipped
     p = Path(path).expanduser()
     if p.is_dir():
         for candidate in (p / CHECKPOINT_DIR / LAST_NAME, p / LAST_NAME):

@@ -37,7 +37,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from truckrl.agent.checkpoint import CHECKPOINT_DIR, LAST_NAME, TMP_SUFFIX, CheckpointError
+from truckrl.agent.checkpoint import (
+    CHECKPOINT_DIR,
+    LAST_NAME,
+    PRETRAINED_DIR,
+    PRETRAINED_PREFIX,
+    TMP_SUFFIX,
+    CheckpointError,
+)
 from truckrl.sim.validation import ConfigError, build
 
 #: Signals that stop training at the next iteration boundary.
@@ -127,7 +134,14 @@ def ignore_stop_signals() -> None:
 
 # ---------------------------------------------------------------------------------- run dirs
 def run_dir_of(checkpoint: Path) -> Path:
-    """The run dir of a checkpoint file (``<run>/checkpoints/last.pt`` -> ``<run>``)."""
+    """The run dir of a checkpoint file (``<run>/checkpoints/last.pt`` -> ``<run>``).
+
+    A policy shipped in the package (``checkpoint=pretrained[:<task>]``) has no run dir; its
+    outputs (evaluation JSON, exports) go to ``outputs/pretrained/<task>`` under the current
+    directory instead of into the installed package.
+    """
+    if checkpoint.resolve().parent == PRETRAINED_DIR:
+        return Path("outputs") / PRETRAINED_PREFIX / checkpoint.stem
     parent = checkpoint.parent
     return parent.parent if parent.name == CHECKPOINT_DIR else parent
 

@@ -1,0 +1,63 @@
+"""``checkpoint=pretrained[:TASK]``: resolution, errors, where outputs go; the shipped policy."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from truckrl.agent import checkpoint as ckpt
+from truckrl.agent.session import run_dir_of
+
+
+@pytest.fixture
+def shipped(tiny_checkpoint, tmp_path, monkeypatch):
+    """A package dir with one shipped policy, ``parking.pt`` (the tiny checkpoint)."""
+    run, _, _ = tiny_checkpoint
+    folder = tmp_path / "pretrained"
+    folder.mkdir()
+    shutil.copy(run / "checkpoints" / "last.pt", folder / "parking.pt")
+    monkeypatch.setattr(ckpt, "PRETRAINED_DIR", folder)
+    monkeypatch.setattr("truckrl.agent.session.PRETRAINED_DIR", folder)
+    monkeypatch.setattr(ckpt, "PRETRAINED_DEFAULT", "parking")
+    return folder
+
+
+def test_pretrained_names_resolve_to_the_shipped_file(shipped):
+    assert ckpt.resolve_checkpoint("pretrained") == shipped / "parking.pt"
+    assert ckpt.resolve_checkpoint("pretrained:parking") == shipped / "parking.pt"
+    assert ckpt.pretrained_names() == ["parking"]
+    state = ckpt.load_training_state("pretrained:parking")
+    assert state["counters"]["iteration"] == 3
+
+
+def test_unknown_pretrained_name_is_one_line(shipped):
+    with pytest.raises(
+        ckpt.CheckpointError, match=r"no shipped policy 'dock' \(shipped: \['parking'\]\)"
+    ):
+        ckpt.resolve_checkpoint("pretrained:dock")
+
+
+def test_a_path_named_pretrained_wins(shipped, tmp_path, monkeypatch, tiny_checkpoint):
+    run, _, _ = tiny_checkpoint
+    (tmp_path / "cwd").mkdir()
+    monkeypatch.chdir(tmp_path / "cwd")
+    shutil.copytree(run, tmp_path / "cwd" / "pretrained")  # a run dir called "pretrained"
+    assert ckpt.resolve_checkpoint("pretrained") == Path("pretrained/checkpoints/last.pt")
+
+
+def test_outputs_of_a_shipped_policy_stay_out_of_the_package(shipped):
+    assert run_dir_of(shipped / "parking.pt") == Path("outputs/pretrained/parking")
+    assert run_dir_of(Path("/x/run/checkpoints/last.pt")) == Path("/x/run")
+
+
+@pytest.mark.skipif(not (ckpt.PRETRAINED_DIR / "intersection.pt").is_file(), reason="not shipped")
+def test_the_shipped_intersection_policy_loads_and_drives():
+    from truckrl.agent.policy import load_policy
+    from truckrl.agent.rollout import evaluate_policy
+
+    policy = load_policy("pretrained")
+    assert policy.difficulty >= 1.0
+    results, _, _ = evaluate_policy(policy.actor, policy.env_config, 2.0, episodes=8, seed=1)
+    assert int(results["length"].min()) >= 1 and results["success"].shape == (8,)
