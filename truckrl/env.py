@@ -110,7 +110,7 @@ class TruckEnv(EnvBase):
             (num_envs,), self.config.tolerance.difficulty, device=self.device
         )
         self._state_keys = ("pose", "goal", "segments", "mask", "step_count", *CONTROL_KEYS)
-        self._state_keys += self.task.error_keys
+        self._state_keys += (*self.task.error_keys, *self.task.extra_state_keys)
         self._make_specs()
         compile_fn = (
             (lambda f: torch.compile(f, dynamic=False)) if self.config.compile else (lambda f: f)
@@ -190,7 +190,7 @@ class TruckEnv(EnvBase):
                 f"set_state needs a state of batch size [{self.num_envs}], "
                 f"got {list(state.batch_size)}"
             )
-        self._restore = state.to(self.device).clone()
+        self._restore = self.task.complete_state(state.to(self.device).clone())
         return self.reset()
 
     @property

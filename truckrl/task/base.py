@@ -108,6 +108,10 @@ class Task:
         return NUM_FEATURES + self.num_extras
 
     num_extras: ClassVar[int] = 0
+    #: State entries of this task beyond the shared ones (module doc), constant per episode,
+    #: that :meth:`transition` reads (e.g. a reference route). :meth:`complete_state` fills them
+    #: in a state built by hand.
+    extra_state_keys: ClassVar[tuple[str, ...]] = ()
 
     def to(self, device: torch.device | str) -> Task:
         self.rel_angles = self.rel_angles.to(device)
@@ -118,6 +122,14 @@ class Task:
     def sample(self, m: int, rng: torch.Generator, device: torch.device) -> TensorDict:
         """``m`` new episodes at their start (state layout in the module doc)."""
         raise NotImplementedError
+
+    def complete_state(self, state: TensorDict) -> TensorDict:
+        """``state`` with any missing :attr:`extra_state_keys` derived from it (in place).
+
+        A state that :meth:`sample` made has them; one built by hand (tests, the planner) may
+        not. The default task has none.
+        """
+        return state
 
     def errors(self, pose: Tensor, goal: Tensor) -> dict[str, Tensor]:
         """Errors to the goal ``{key: [N]}`` for :attr:`error_quantities`."""

@@ -9,6 +9,14 @@ same road or across a crossing, through parked obstacles, within tightening tole
   difficulty ``d``, without collision or jack-knife.
 * Reward (paper, "Rewards"): +0.05 per metre of progress, +0.5 per radian of tractor and of trailer
   heading correction, time reward 0, +5 success, -7 collision or jack-knife, -8 timeout.
+* Shaping (``env.task.reward.shaping``): ``goal`` (the paper's) measures progress as the straight
+  distance to the goal and heading correction against the goal heading. ``route`` measures both
+  along the lane route :func:`route_path`: the start lane up to the corner where it meets the goal
+  lane, then the goal lane (:func:`route_reference`). With ``goal`` shaping, turning towards the
+  goal at once earns the heading terms; in a right turn that puts the trailer over the near curb,
+  and a policy can learn to stay put rather than crash. With ``route`` shaping the heading terms
+  pay only for turning where the lanes meet. Both are potential-based (differences of a function
+  of the state), so the same policies are optimal up to discounting.
 """
 
 from __future__ import annotations
@@ -46,6 +54,12 @@ class RewardConfig:
     success: float = param(5.0, doc="on success", source="paper")
     collision: float = param(-7.0, doc="on collision or jack-knife", source="paper")
     timeout: float = param(-8.0, doc="on timeout", source="paper")
+    shaping: str = param(
+        "goal",
+        choices=("goal", "route"),
+        doc="progress and heading terms measured to the goal (paper) or along the lane route "
+        "(module doc)",
+    )
 
     def __post_init__(self) -> None:
         validate(self, "env.task.reward")
@@ -83,12 +97,20 @@ class IntersectionTask(Task):
         "r_timeout",
     )
 
+    extra_state_keys = ("route_path",)
+
     def sample(self, m: int, rng: torch.Generator, device: torch.device) -> TensorDict:
         params = sample_vehicle_params(self.cfg.vehicle, m, rng, device)
         scenes = generate_scenes(self.cfg.task.scene, params, rng, device)
         scene = {k: getattr(scenes, k) for k in ("start", "goal", "segments", "mask", "kind")}
         scene["route"] = {k: getattr(scenes, k) for k in ROUTE_KEYS}
-        return self.initial_state(params, scene, device)
+        return self.complete_state(self.initial_state(params, scene, device))
+
+    def complete_state(self, state: TensorDict) -> TensorDict:
+        """Add ``route_path [N, 3, 2]`` (from the current pose to the goal) where it is missing."""
+        if "route_path" not in state.keys():
+            state["route_path"] = route_path(state["pose"][:, :3], state["goal"])
+        return state
 
     def errors(self, pose: Tensor, goal: Tensor) -> dict[str, Tensor]:
         """Position of the tractor rear axle to the goal [m]; tractor and trailer heading to the
@@ -115,17 +137,92 @@ class IntersectionTask(Task):
         w = self.cfg.task.reward
         zero = torch.zeros_like(after["pos_error"])
         failed = flags["collision"] | flags["jackknife"]
+        if w.shaping == "route":
+            b, a = route_errors(before), route_errors(after)
+        else:
+            b, a = before, after
         return {
-            "r_progress": w.progress * (before["pos_error"] - after["pos_error"]),
+            "r_progress": w.progress * (b["pos_error"] - a["pos_error"]),
             "r_tractor_heading": w.tractor_heading
-            * (before["tractor_heading_error"] - after["tractor_heading_error"]),
+            * (b["tractor_heading_error"] - a["tractor_heading_error"]),
             "r_trailer_heading": w.trailer_heading
-            * (before["trailer_heading_error"] - after["trailer_heading_error"]),
+            * (b["trailer_heading_error"] - a["trailer_heading_error"]),
             "r_time": zero + w.time,
             "r_success": torch.where(flags["success"], w.success, zero),
             "r_collision": torch.where(failed, w.collision, zero),
             "r_timeout": torch.where(flags["truncated"], w.timeout, zero),
         }
+
+
+#: Smallest |sin| of the angle between the start and goal lanes for which they count as meeting
+#: at a corner; below it (about 10 deg, parallel lanes) the route is the straight start-goal line.
+MIN_CORNER_SIN = 0.17
+
+
+def route_path(start: Tensor, goal: Tensor) -> Tensor:
+    """The lane route ``[N, 3, 2]`` [m]: start, corner, goal (tractor rear-axle positions).
+
+    The corner is where the start lane (the line through ``start`` along its heading) meets the
+    goal lane (the line through ``goal`` along its heading), when it lies ahead of the start and
+    before the goal. Otherwise (a straight road or straight on: parallel lanes; or a corner
+    behind the start or past the goal) it is the midpoint, and the route is the straight line.
+
+    Args:
+        start: ``[N, 3]`` start pose ``(x, y, heading)`` [m, m, rad].
+        goal: ``[N, 3]`` goal pose, same convention.
+    """
+    s, g = start[:, :2], goal[:, :2]
+    u = torch.stack((start[:, 2].cos(), start[:, 2].sin()), -1)
+    v = torch.stack((goal[:, 2].cos(), goal[:, 2].sin()), -1)
+    d = g - s
+    cross_uv = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    safe = torch.where(cross_uv.abs() < 1e-9, torch.ones_like(cross_uv), cross_uv)
+    ahead = (d[:, 0] * v[:, 1] - d[:, 1] * v[:, 0]) / safe  # start -> corner along u [m]
+    before = (u[:, 0] * d[:, 1] - u[:, 1] * d[:, 0]) / safe  # corner -> goal along v [m]
+    ok = (cross_uv.abs() >= MIN_CORNER_SIN) & (ahead > 0) & (before > 0)
+    corner = torch.where(ok[:, None], s + ahead[:, None] * u, 0.5 * (s + g))
+    return torch.stack((s, corner, g), 1)
+
+
+def route_reference(xy: Tensor, path: Tensor, goal_heading: Tensor) -> tuple[Tensor, Tensor]:
+    """Distance to go along the route from ``xy`` and the route's heading there.
+
+    ``xy`` is projected on the nearer of the two legs (ties: the second). Distance to go = the
+    lateral distance to that leg + the rest of the route from the projection [m]; the heading
+    is the first leg's direction (start to corner) on the first leg and the goal heading on the
+    second (the two agree when the corner is a real one: the second leg lies on the goal lane).
+
+    Args:
+        xy: ``[N, 2]`` tractor rear-axle position [m].
+        path: ``[N, 3, 2]`` from :func:`route_path`.
+        goal_heading: ``[N]`` [rad].
+
+    Returns:
+        ``(to_go [N] [m], heading [N] [rad])``.
+    """
+    a, b = path[:, :-1], path[:, 1:]  # [N, 2 legs, 2]
+    ab = b - a
+    length = torch.linalg.vector_norm(ab, dim=-1)  # [N, 2]
+    t = ((xy[:, None] - a) * ab).sum(-1) / length.square().clamp_min(1e-12)
+    t = t.clamp(0.0, 1.0)
+    lateral = torch.linalg.vector_norm(xy[:, None] - (a + t[..., None] * ab), dim=-1)
+    rest = (1.0 - t) * length + torch.stack((length[:, 1], torch.zeros_like(t[:, 1])), -1)
+    second = lateral[:, 1] <= lateral[:, 0]
+    to_go = torch.where(second, lateral[:, 1] + rest[:, 1], lateral[:, 0] + rest[:, 0])
+    first = torch.atan2(ab[:, 0, 1], ab[:, 0, 0])
+    return to_go, torch.where(second, goal_heading, first)
+
+
+def route_errors(s: dict[str, Any]) -> dict[str, Tensor]:
+    """The errors that ``route`` shaping rewards: distance to go along the route [m] and the
+    tractor and trailer heading to the route's heading at the truck [rad] (``{key: [N]}``)."""
+    pose = s["pose"]
+    to_go, heading = route_reference(pose[:, :2], s["route_path"], s["goal"][:, 2])
+    return {
+        "pos_error": to_go,
+        "tractor_heading_error": wrap_angle(heading - pose[:, 2]).abs(),
+        "trailer_heading_error": wrap_angle(heading - pose[:, 2] - pose[:, 3]).abs(),
+    }
 
 
 TASK = IntersectionTask
