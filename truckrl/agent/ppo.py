@@ -141,7 +141,9 @@ class PPO:
             normalize_advantage=False,
             clip_value=cfg.clip_epsilon if cfg.clip_value else None,
         )
-        self.optimizer = torch.optim.Adam(ac.model.parameters(), lr=cfg.lr)
+        # foreach: one kernel per op for all parameters instead of one per parameter (the CPU
+        # default is the per-parameter loop); same arithmetic, bit for bit, ~20 % less step time
+        self.optimizer = torch.optim.Adam(ac.model.parameters(), lr=cfg.lr, foreach=True)
         self.schedule = (
             AdaptiveKLSchedule(cfg.lr, cfg.desired_kl, cfg.lr_min, cfg.lr_max)
             if cfg.lr_schedule == "adaptive"
@@ -202,9 +204,13 @@ class PPO:
         steps = 0
         for _ in range(self.cfg.num_epochs):
             perm = torch.randperm(n, device=batch.device)
-            for idx in perm.split(mb_size):
+            with _span(timings, "loss_forward", dev):
+                # one gather per epoch, then contiguous minibatch views: the same rows as
+                # indexing per minibatch, with one indexing call per key instead of one per step
+                shuffled = batch[perm]
+            for start in range(0, n, mb_size):
                 with _span(timings, "loss_forward", dev):
-                    mb = batch[idx]
+                    mb = shuffled[start : start + mb_size]
                     out = self.loss(mb)
                     total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
                     # KL of this minibatch before the step, from the loss's own forward (RSL-RL
@@ -237,4 +243,6 @@ class PPO:
 
     def load_state_dict(self, state: dict) -> None:
         self.optimizer.load_state_dict(state["optimizer"])
+        for group in self.optimizer.param_groups:  # a checkpoint's own choice (None in older ones)
+            group["foreach"] = True
         self.set_lr(float(state["lr"]))
