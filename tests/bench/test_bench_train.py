@@ -20,13 +20,14 @@ TINY = [
 def test_tiny_run_writes_the_parts_of_each_iteration(tmp_path, capsys):
     out = tmp_path / "record.json"
     argv = ["train", *TINY[:2], *(f"--override={o}" for o in TINY[2:])]
-    main([*argv, "--iterations", "2", "--warmup", "0", "--output", str(out)])
+    main([*argv, "--iterations", "2", "--warmup", "0", "--profile", "3", "--output", str(out)])
     stdout = capsys.readouterr().out
     assert "frames/s" in stdout and "bench train took" in stdout
     record = json.loads(out.read_text())
     assert record["benchmark"] == "train"
     assert record["config"]["frames_per_batch"] == 64 and record["config"]["env_compile"] is False
     assert record["summary"]["torch_threads"] >= 1
+    assert len(record["profile"]) == 3 and record["profile"][0]["self_cpu_ms"] > 0
     rows = record["rows"]
     assert [r["iteration"] for r in rows] == [1, 2]
     for r in rows:
@@ -44,6 +45,7 @@ def test_tiny_run_writes_the_parts_of_each_iteration(tmp_path, capsys):
         (["--iterations", "0"], "error: --iterations must be >= 1 (got 0)"),
         (["--warmup", "-1"], "error: --warmup must be >= 0 (got -1)"),
         (["--threads", "0"], "error: --threads must be >= 1 (got 0)"),
+        (["--profile", "-1"], "error: --profile must be >= 0 (got -1)"),
         (["nokey"], "error: override 'nokey': write KEY=VALUE"),
         (["--override", "ppo.num_epochs=0"], "error: ppo.num_epochs"),
         (["collector.no_such_field=1"], "error: "),
@@ -62,6 +64,14 @@ def test_every_option_has_help(capsys):
         main(["train", "--help"])
     assert exc.value.code == 0
     lines = capsys.readouterr().out.splitlines()
-    for opt in ("--override", "--iterations", "--warmup", "--quick", "--threads", "--output"):
+    for opt in (
+        "--override",
+        "--iterations",
+        "--warmup",
+        "--quick",
+        "--threads",
+        "--output",
+        "--profile",
+    ):
         line = next(x for x in lines if x.strip().startswith(opt))
         assert len(line.strip()) > len(opt) + 8, opt  # followed by a description

@@ -75,7 +75,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--quick", action="store_true",
         help="a short run (under ~60 s on 2 cores): 64 trucks x 32 steps, 2 epochs, eager env, "
-        "1 warm-up + 2 timed iterations; explicit overrides still apply on top",
+        "1 warm-up + 2 timed iterations, 1 torch thread unless --threads; explicit overrides "
+        "still apply on top",
+    )  # fmt: skip
+    parser.add_argument(
+        "--profile", type=int, default=0, metavar="ROWS",
+        help="also run torch.profiler over the last timed PPO update and print its ROWS most "
+        "expensive ops by self time (default: 0 = off; the profiler slows that iteration)",
     )  # fmt: skip
     parser.add_argument(
         "--threads", type=int, metavar="N", help="torch threads (default: torch's choice)"
@@ -93,6 +99,8 @@ def check_args(args: argparse.Namespace) -> Any:
     if args.quick:
         for k, v in QUICK.items():
             setattr(args, k, v)
+        if args.threads is None:  # a shared 2-core machine: 2 threads can be ~20x slower
+            args.threads = 1
     overrides = [*(QUICK_OVERRIDES if args.quick else ()), *args.overrides, *args.override]
     args.all_overrides = overrides
     bad = []
@@ -100,6 +108,8 @@ def check_args(args: argparse.Namespace) -> Any:
         bad.append(f"--iterations must be >= 1 (got {args.iterations})")
     if args.warmup < 0:
         bad.append(f"--warmup must be >= 0 (got {args.warmup})")
+    if args.profile < 0:
+        bad.append(f"--profile must be >= 0 (got {args.profile})")
     if args.threads is not None and args.threads < 1:
         bad.append(f"--threads must be >= 1 (got {args.threads})")
     bad += [f"override {o!r}: write KEY=VALUE" for o in overrides if "=" not in o.lstrip("+~")]
@@ -136,6 +146,35 @@ def compose_train_config(overrides: list[str]) -> Any:
         if why is None:
             raise
         _fail(why)
+
+
+def _profiler(on: bool) -> Any:
+    """``torch.profiler.profile`` (CPU, plus CUDA when available) when ``on``, else a no-op."""
+    import contextlib
+
+    if not on:
+        return contextlib.nullcontext()
+    acts = [torch.profiler.ProfilerActivity.CPU]
+    if torch.cuda.is_available():
+        acts.append(torch.profiler.ProfilerActivity.CUDA)
+    return torch.profiler.profile(activities=acts)
+
+
+def _top_ops(prof: Any, rows: int) -> list[dict[str, Any]]:
+    """The ``rows`` ops of a finished profile with the most self CPU time [ms], with call counts."""
+    if prof is None:
+        return []
+    events = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)
+    total = sum(e.self_cpu_time_total for e in events) or 1.0
+    return [
+        {
+            "op": e.key,
+            "self_cpu_ms": e.self_cpu_time_total / 1e3,
+            "share": e.self_cpu_time_total / total,
+            "calls": e.count,
+        }  # fmt: skip
+        for e in events[:rows]
+    ]
 
 
 def _sync(device: torch.device) -> None:
@@ -205,7 +244,9 @@ def run(args: argparse.Namespace) -> dict:
                     tolerance = set_difficulty(env, curriculum.difficulty)
                 _sync(device)
                 t2 = time.perf_counter()
-                learn = ppo.update(batch, timings=spans)
+                profiled = args.profile and it == args.warmup + args.iterations - 1
+                with _profiler(profiled) as prof:
+                    learn = ppo.update(batch, timings=spans)
                 t3 = time.perf_counter()
                 collector.update_policy_weights_()
                 _sync(device)
@@ -244,6 +285,9 @@ def run(args: argparse.Namespace) -> dict:
             if not env.is_closed:
                 env.close()
 
+    top_ops = _top_ops(prof, args.profile) if args.profile else []
+    if top_ops:
+        print_table(f"torch.profiler: last PPO update, top {len(top_ops)} ops by self CPU", top_ops)
     timed = rows[args.warmup :]
     median = {"iteration": "median"}
     for k in ("frames", "frames/s", "total_s", *PARTS, "other_s"):
@@ -278,7 +322,7 @@ def run(args: argparse.Namespace) -> dict:
     }
     args_json = {k: v for k, v in vars(args).items() if not k.startswith("_")}
     payload = {"rows": rows, "summary": summary, "config": config, "table": table,
-               "args": args_json}  # fmt: skip
+               "profile": top_ops, "args": args_json}  # fmt: skip
     path = write_json("train", payload, path=args.output)
     summary["path"] = str(path)
     return summary
