@@ -16,7 +16,9 @@ logger (into a temporary folder). After ``--warmup`` untimed iterations (they ab
   ``log.interval`` says);
 * ``other_s``: the rest of ``total_s``, so the parts add up to the total.
 
-``frames/s`` is frames per iteration / ``total_s``. Device work is synchronised at the span
+``frames/s`` is frames per iteration / ``total_s``. ``--profile ROWS`` adds one more iteration
+(recorded, left out of the medians) with ``torch.profiler`` around its PPO update and prints the
+ops with the most self time. Device work is synchronised at the span
 ends (CUDA), so each span holds its own kernels.
 """
 
@@ -80,8 +82,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument(
         "--profile", type=int, default=0, metavar="ROWS",
-        help="also run torch.profiler over the last timed PPO update and print its ROWS most "
-        "expensive ops by self time (default: 0 = off; the profiler slows that iteration)",
+        help="after the timed iterations, one more (left out of the medians) with torch.profiler "
+        "over its PPO update; print its ROWS most expensive ops by self time (default: 0 = off)",
     )  # fmt: skip
     parser.add_argument(
         "--threads", type=int, metavar="N", help="torch threads (default: torch's choice)"
@@ -231,7 +233,8 @@ def run(args: argparse.Namespace) -> dict:
         logger = RunLogger(tb_dir)
         batches = iter(collector)
         try:
-            for it in range(args.warmup + args.iterations):
+            last = args.warmup + args.iterations  # one more, profiled and not timed, if asked
+            for it in range(last + (1 if args.profile else 0)):
                 spans: dict[str, float] = {}
                 _sync(device)
                 t0 = time.perf_counter()
@@ -244,8 +247,7 @@ def run(args: argparse.Namespace) -> dict:
                     tolerance = set_difficulty(env, curriculum.difficulty)
                 _sync(device)
                 t2 = time.perf_counter()
-                profiled = args.profile and it == args.warmup + args.iterations - 1
-                with _profiler(profiled) as prof:
+                with _profiler(it == last) as prof:
                     learn = ppo.update(batch, timings=spans)
                 t3 = time.perf_counter()
                 collector.update_policy_weights_()
@@ -260,8 +262,9 @@ def run(args: argparse.Namespace) -> dict:
                 logger.scalars(scalars, frames_total)
                 t5 = time.perf_counter()
                 total = t5 - t0
+                label = "warm-up" if it < args.warmup else it - args.warmup + 1
                 row: dict[str, Any] = {
-                    "iteration": it - args.warmup + 1 if it >= args.warmup else "warm-up",
+                    "iteration": "profiled" if it == last else label,
                     "frames": frames,
                     "frames/s": frames / total,
                     "total_s": total,
@@ -288,7 +291,7 @@ def run(args: argparse.Namespace) -> dict:
     top_ops = _top_ops(prof, args.profile) if args.profile else []
     if top_ops:
         print_table(f"torch.profiler: last PPO update, top {len(top_ops)} ops by self CPU", top_ops)
-    timed = rows[args.warmup :]
+    timed = rows[args.warmup : last]
     median = {"iteration": "median"}
     for k in ("frames", "frames/s", "total_s", *PARTS, "other_s"):
         median[k] = statistics.median(float(r[k]) for r in timed)
