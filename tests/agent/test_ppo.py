@@ -112,3 +112,13 @@ def test_critic_loss_reaches_the_shared_trunk():
     trunk = ac.model.module[0].module
     assert trunk.numeric[0].weight.grad.abs().sum() > 0
     assert trunk.lidar.net[0].weight.grad.abs().sum() > 0
+
+
+def test_adam_stays_foreach_after_loading_an_older_optimizer_state():
+    ac = make_actor_critic(ModelConfig(), 26, 16)
+    ppo = PPO(ac, PPOConfig())
+    state = ppo.state_dict()
+    for group in state["optimizer"]["param_groups"]:
+        group["foreach"] = None  # what checkpoints written before the foreach switch hold
+    ppo.load_state_dict(state)
+    assert all(g["foreach"] is True for g in ppo.optimizer.param_groups)

@@ -9,6 +9,10 @@ between the rollout policy and the current one, checked before every minibatch s
 
 from __future__ import annotations
 
+import contextlib
+import time
+from collections.abc import Iterator
+
 import torch
 from tensordict import TensorDictBase
 from torch import Tensor
@@ -91,6 +95,27 @@ class _ClipPPOLoss(ClipPPOLoss):
         return out
 
 
+@contextlib.contextmanager
+def _span(timings: dict[str, float] | None, key: str, device: torch.device) -> Iterator[None]:
+    """Add the wall time [s] of the ``with`` body to ``timings[key]`` (no-op when ``None``).
+
+    On CUDA the device is synchronised at both ends, so the span holds the kernels it launched.
+    """
+    if timings is None:
+        yield
+        return
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda _device: None)
+    sync(device)
+    t0 = time.perf_counter()
+    yield
+    sync(device)
+    timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
+
+
+#: The parts of :meth:`PPO.update` its ``timings`` argument receives [s].
+UPDATE_SPANS = ("gae", "loss_forward", "backward", "optimizer", "metrics")
+
+
 class PPO:
     """One PPO learner: call :meth:`update` with each collected batch.
 
@@ -116,7 +141,9 @@ class PPO:
             normalize_advantage=False,
             clip_value=cfg.clip_epsilon if cfg.clip_value else None,
         )
-        self.optimizer = torch.optim.Adam(ac.model.parameters(), lr=cfg.lr)
+        # foreach: one kernel per op for all parameters instead of one per parameter (the CPU
+        # default is the per-parameter loop); same arithmetic, bit for bit, ~20 % less step time
+        self.optimizer = torch.optim.Adam(ac.model.parameters(), lr=cfg.lr, foreach=True)
         self.schedule = (
             AdaptiveKLSchedule(cfg.lr, cfg.desired_kl, cfg.lr_min, cfg.lr_max)
             if cfg.lr_schedule == "adaptive"
@@ -143,20 +170,31 @@ class PPO:
             batch["advantage"] = (adv - adv.mean()) / (adv.std() + 1e-8)
         return batch
 
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
+    def update(
+        self, batch: TensorDictBase, timings: dict[str, float] | None = None
+    ) -> dict[str, float]:
         """Run ``num_epochs`` x ``num_minibatches`` gradient steps on one rollout.
 
         Args:
             batch: collector output ``[..., T]`` with "observation", "lidar", "action", "loc",
                 "scale", "action_log_prob" and the ("next", ...) step entries.
+            timings: optional dict that receives the wall time [s] of each part, summed over the
+                minibatches (:data:`UPDATE_SPANS`): "gae" (advantages, flattening and key
+                selection), "loss_forward" (minibatch indexing, loss and KL), "backward",
+                "optimizer" (learning-rate schedule, gradient clipping, Adam step) and "metrics"
+                (the sums and the final read-out). Synchronised on CUDA; the numbers computed are
+                the same with or without it (``python -m truckrl.bench train`` reads it).
 
         Returns:
             Means over all minibatches: "loss_objective", "loss_critic", "loss_entropy",
             "entropy", "kl" (analytic, old || new), "kl_approx" (TorchRL's sample estimate),
             "clip_fraction", "grad_norm"; plus "lr" (after the update) and "action_std".
         """
-        # only what the loss and the KL read: indexing every collected key per minibatch cost ~15 %
-        batch = self.compute_advantages(batch).reshape(-1).select(*_UPDATE_KEYS)
+        dev = batch.device if batch.device is not None else torch.device("cpu")
+        with _span(timings, "gae", dev):
+            # only what the loss and the KL read: indexing every collected key per minibatch
+            # cost ~15 %
+            batch = self.compute_advantages(batch).reshape(-1).select(*_UPDATE_KEYS)
         n = batch.numel()
         mb_size = self.cfg.check_batch(n)
         keys = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx")
@@ -166,28 +204,38 @@ class PPO:
         steps = 0
         for _ in range(self.cfg.num_epochs):
             perm = torch.randperm(n, device=batch.device)
-            for idx in perm.split(mb_size):
-                mb = batch[idx]
-                out = self.loss(mb)
-                total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
-                # KL of this minibatch before the step, from the loss's own forward (RSL-RL order:
-                # the new learning rate applies to this very step)
-                loc, scale = self.loss.last_loc, self.loss.last_scale
-                kl = gaussian_kl(mb["loc"], mb["scale"], loc, scale).mean()
-                if self.schedule is not None:
-                    self.set_lr(self.schedule.step(kl.item()))
-                self.optimizer.zero_grad(set_to_none=True)
-                total.backward()
-                grad_norm = torch.nn.utils.clip_grad_norm_(params, self.cfg.max_grad_norm)
-                self.optimizer.step()
-                for k in keys:
-                    sums[k] += out[k].detach()
-                sums["kl"] += kl
-                sums["grad_norm"] += grad_norm.detach()
+            with _span(timings, "loss_forward", dev):
+                # one gather per epoch, then contiguous minibatch views: the same rows as
+                # indexing per minibatch, with one indexing call per key instead of one per step
+                shuffled = batch[perm]
+            for start in range(0, n, mb_size):
+                with _span(timings, "loss_forward", dev):
+                    mb = shuffled[start : start + mb_size]
+                    out = self.loss(mb)
+                    total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+                    # KL of this minibatch before the step, from the loss's own forward (RSL-RL
+                    # order: the new learning rate applies to this very step)
+                    loc, scale = self.loss.last_loc, self.loss.last_scale
+                    kl = gaussian_kl(mb["loc"], mb["scale"], loc, scale).mean()
+                with _span(timings, "optimizer", dev):
+                    if self.schedule is not None:
+                        self.set_lr(self.schedule.step(kl.item()))
+                    self.optimizer.zero_grad(set_to_none=True)
+                with _span(timings, "backward", dev):
+                    total.backward()
+                with _span(timings, "optimizer", dev):
+                    grad_norm = torch.nn.utils.clip_grad_norm_(params, self.cfg.max_grad_norm)
+                    self.optimizer.step()
+                with _span(timings, "metrics", dev):
+                    for k in keys:
+                        sums[k] += out[k].detach()
+                    sums["kl"] += kl
+                    sums["grad_norm"] += grad_norm.detach()
                 steps += 1
-        metrics = {k: v.item() / steps for k, v in sums.items()}
-        metrics["lr"] = self.lr
-        metrics["action_std"] = self.ac.action_std().mean().item()
+        with _span(timings, "metrics", dev):
+            metrics = {k: v.item() / steps for k, v in sums.items()}
+            metrics["lr"] = self.lr
+            metrics["action_std"] = self.ac.action_std().mean().item()
         return metrics
 
     def state_dict(self) -> dict:
@@ -195,4 +243,6 @@ class PPO:
 
     def load_state_dict(self, state: dict) -> None:
         self.optimizer.load_state_dict(state["optimizer"])
+        for group in self.optimizer.param_groups:  # a checkpoint's own choice (None in older ones)
+            group["foreach"] = True
         self.set_lr(float(state["lr"]))

@@ -15,6 +15,7 @@ from types import ModuleType
 BENCHMARKS: dict[str, str] = {
     "lidar": "truckrl.bench.lidar",
     "env": "truckrl.bench.env",
+    "train": "truckrl.bench.train",
 }
 
 

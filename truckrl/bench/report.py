@@ -96,12 +96,17 @@ def machine_info() -> dict[str, Any]:
     }
 
 
-def write_json(name: str, payload: dict[str, Any], out_dir: str | Path = DEFAULT_OUT_DIR) -> Path:
-    """Write ``payload`` plus machine info to ``<out_dir>/<name>-<timestamp>.json``; return the path."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+def write_json(
+    name: str,
+    payload: dict[str, Any],
+    out_dir: str | Path = DEFAULT_OUT_DIR,
+    path: str | Path | None = None,
+) -> Path:
+    """Write ``payload`` plus machine info to ``<out_dir>/<name>-<timestamp>.json`` (or to
+    ``path`` when given); return the path."""
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    path = out / f"{name}-{stamp}.json"
+    path = Path(path) if path is not None else Path(out_dir) / f"{name}-{stamp}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
     record = {"benchmark": name, "time": stamp, "machine": machine_info(), **payload}
     path.write_text(json.dumps(record, indent=2, default=str))
     print(f"\nwrote {path}", flush=True)
