@@ -136,7 +136,11 @@ def heavy_modules_after(code: str) -> set[str]:
         [sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, env=ENV
     )
     assert out.returncode == 0, out.stderr
-    return set(ast.literal_eval(out.stdout.strip().splitlines()[-1])) & {"torch", "tensordict", "torchrl"}
+    return set(ast.literal_eval(out.stdout.strip().splitlines()[-1])) & {
+        "torch",
+        "tensordict",
+        "torchrl",
+    }
 
 
 @pytest.mark.parametrize("entry", ["train", "evaluate", "play", "export"])
