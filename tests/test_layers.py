@@ -22,6 +22,7 @@ ENTRY = {
     "train",
     "evaluate",
     "play",
+    "imitate",
     "plan",
     "export",
     "runner",

@@ -77,6 +77,32 @@ def to_config(schema: type[T], cfg: Any) -> T:
     return build(schema, data)
 
 
+def compose_config(config_name: str, schema: type[T], overrides: list[str]) -> T:
+    """``conf/<config_name>.yaml`` with command-line ``overrides``, composed by Hydra as the entry
+    point would and validated as ``schema`` (no run dir, no job).
+
+    Raises:
+        ConfigError: a bad value, an unknown field or group option, an unparsable override.
+    """
+    from hydra import compose, initialize_config_dir
+
+    from truckrl.configs import register
+    from truckrl.sim.validation import ConfigError
+
+    register()
+    try:
+        with initialize_config_dir(config_dir=CONFIG_PATH, version_base=None):
+            raw = compose(config_name, overrides=list(overrides))
+    except ConfigError:
+        raise
+    except Exception as e:  # Hydra / OmegaConf composition errors
+        why = describe_hydra_error(e)
+        if why is None:
+            raise
+        raise ConfigError(why) from None
+    return to_config(schema, raw)
+
+
 def help_text(config_name: str) -> str:
     """The ``--help`` template of an entry point (``conf/hydra/help/<name>.yaml``)."""
     import yaml

@@ -130,24 +130,14 @@ def _fail(message: str) -> None:
 def compose_train_config(overrides: list[str]) -> Any:
     """``conf/train.yaml`` with ``overrides``, composed and validated as ``truckrl.train`` does;
     a user error prints one line and exits 2."""
-    from hydra import compose, initialize_config_dir
-
-    from truckrl.cli import CONFIG_PATH, describe_hydra_error, to_config
-    from truckrl.configs import TrainConfig, register
+    from truckrl.cli import compose_config
+    from truckrl.configs import TrainConfig
     from truckrl.sim.validation import ConfigError
 
-    register()
     try:
-        with initialize_config_dir(config_dir=CONFIG_PATH, version_base=None):
-            raw = compose("train", overrides=list(overrides))
-        return to_config(TrainConfig, raw)
+        return compose_config("train", TrainConfig, overrides)
     except ConfigError as e:
         _fail(str(e))
-    except Exception as e:  # Hydra / OmegaConf composition errors
-        why = describe_hydra_error(e)
-        if why is None:
-            raise
-        _fail(why)
 
 
 def _profiler(on: bool) -> Any:

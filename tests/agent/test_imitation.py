@@ -1,0 +1,94 @@
+"""Behaviour cloning from planner demonstrations: replayed samples, the fit, and the
+``python -m truckrl.imitate`` checkpoint that ``train resume=`` continues."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from tests.agent.test_planner import ENV, FAST, straight_scene
+from tests.conftest import TINY_BATCH, TINY_TRAIN, run_cli
+from truckrl.agent.imitation import behaviour_clone, demonstrations, set_action_std
+from truckrl.agent.network import ModelConfig, make_actor_critic
+from truckrl.agent.planner import plan_states
+from truckrl.agent.policy import load_policy
+from truckrl.env import TruckEnv
+
+
+@pytest.fixture(scope="module")
+def solved():
+    """The straight scene and a planner sequence that solves it at difficulty 2."""
+    state = straight_scene()
+    res, _, _ = plan_states(ENV, state, 2.0, FAST)
+    assert bool(res["success"][0])
+    n = int(res["length"][0])
+    return state, res["actions"][0, :n].tolist()
+
+
+def test_samples_are_what_the_policy_sees_before_each_action(solved):
+    state, actions = solved
+    stalled = [[-1.0, 0.0]] * 30  # stands still: a timeout of this 30-step sequence
+    both = torch.cat((state, state))
+    samples, kept = demonstrations(ENV, both, [actions, stalled], 2.0)
+    assert kept == 1 and samples.numel() == len(actions)  # the stalled one is dropped
+    env = TruckEnv(num_envs=1, config=ENV, seed=0)
+    env.set_difficulty(2.0)
+    td = env.set_state(state.clone())
+    for t in (0, 1, len(actions) - 1):
+        if t:
+            td = env.set_state(state.clone())
+            for a in actions[:t]:
+                td = env.step(td.set("action", torch.tensor([a])))["next"]
+        assert torch.equal(samples["observation"][t], td["observation"][0])
+        assert torch.equal(samples["lidar"][t], td["lidar"][0])
+        assert samples["action"][t].tolist() == pytest.approx(actions[t])
+
+
+def test_cloning_fits_the_mean_and_leaves_std_and_critic(solved):
+    state, actions = solved
+    samples, _ = demonstrations(ENV, state, [actions], 2.0)
+    torch.manual_seed(0)
+    ac = make_actor_critic(ModelConfig(), samples["observation"].shape[1], 16)
+    log_std = ac.gaussian.log_std.detach().clone()
+    value = [p.detach().clone() for p in ac.value_head.parameters()]
+    losses = behaviour_clone(ac, samples, epochs=40, lr=3e-3, batch_size=32)
+    assert losses[-1] < 0.3 * losses[0]
+    assert torch.equal(ac.gaussian.log_std, log_std)
+    assert all(torch.equal(a, b) for a, b in zip(value, ac.value_head.parameters(), strict=True))
+    set_action_std(ac, 0.2)
+    assert torch.allclose(ac.action_std(), torch.full((2,), 0.2))
+
+
+@pytest.mark.e2e
+def test_imitate_writes_a_checkpoint_that_train_resumes(tmp_path):
+    plan_json = tmp_path / "plan.json"
+    env = ["--env", "max_steps=40"]
+    proc = run_cli(
+        "plan", "--episodes", "3", "--difficulty", "0", "--no-compile", "--samples", "32",
+        "--iterations", "2", "--quiet", *env, "--output", str(plan_json),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert any(e["success"] for e in json.loads(plan_json.read_text())["per_episode"])
+    out = tmp_path / "bc"
+    tiny = [*TINY_TRAIN, "env.max_steps=40"]
+    proc = run_cli("imitate", str(plan_json), *tiny, "--epochs", "3", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert f"train: python -m truckrl.train resume={out}" in proc.stdout
+    policy = load_policy(out)
+    assert policy.counters["frames"] == 0 and policy.difficulty == 0.0
+    proc = run_cli("train", f"resume={out}", f"total_frames={TINY_BATCH}")
+    assert proc.returncode == 0, proc.stderr
+    assert load_policy(out).counters["frames"] == TINY_BATCH
+    # a plan made with other env settings is refused in one line
+    proc = run_cli("imitate", str(plan_json), *TINY_TRAIN, "--out", str(tmp_path / "x"))
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1
+    assert proc.stderr.startswith("error: plan ") and "(env.max_steps)" in proc.stderr
+
+
+def test_bad_options_are_one_line():
+    proc = run_cli("imitate", "nowhere.json")
+    assert proc.returncode == 2 and proc.stderr.startswith("error: plan nowhere.json")
+    proc = run_cli("imitate", "nowhere.json", "--std", "0")
+    assert proc.returncode == 2 and proc.stderr.strip() == "error: --std = 0 must be in [0.001, 10]"

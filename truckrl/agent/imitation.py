@@ -1,0 +1,142 @@
+"""Behaviour cloning from planner demonstrations: a start for PPO that already drives every route.
+
+Trained from scratch, PPO learns straight roads and left turns but settles on standing still in
+right turns (README, "Learning quality"): its first attempts crash, and with the paper's rewards
+and discount a timeout 200 steps later costs less than a crash now. The planner
+(:mod:`truckrl.agent.planner`) solves those scenes. This module turns its plans into a policy
+start:
+
+* :func:`demonstrations` replays the successful action sequences of a plan through an eager
+  :class:`~truckrl.env.TruckEnv` started from the same scene states and records what the policy
+  would have seen before each action: ``observation [M, F]``, ``lidar [M, R]`` and the
+  planner's ``action [M, 2]``, for every step up to the end of each episode (``M`` samples in
+  all). A replay that does not end in success is dropped (the count is returned).
+* :func:`behaviour_clone` fits the actor's mean ("loc") to those actions by mean squared error
+  with Adam, shuffled minibatches, a fixed seed; the critic and the log-std are left alone (the
+  log-std is then set by the caller).
+
+``python -m truckrl.imitate`` wraps both and writes a training checkpoint that
+``python -m truckrl.train resume=<dir>`` continues.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+from tensordict import TensorDict
+from torch import Tensor
+
+from truckrl.agent.network import LIDAR_KEY, OBS_KEY, ActorCritic
+from truckrl.env import TruckEnv
+from truckrl.task import EnvConfig
+
+
+def demonstrations(
+    env_cfg: EnvConfig,
+    states: TensorDict,
+    actions: Sequence[Sequence[Sequence[float]]],
+    difficulty: float,
+) -> tuple[TensorDict, int]:
+    """Replay action sequences from start states; keep the successful episodes' samples.
+
+    Args:
+        env_cfg: the env config the plans were made with.
+        states: ``[E]`` start states (:meth:`TruckEnv.get_state` layout).
+        actions: ``E`` sequences of ``[2]`` actions in ``[-1, 1]`` (lengths may differ).
+        difficulty: the difficulty the plans were made at (it decides when an episode ends).
+
+    Returns:
+        ``(samples, kept)``: ``samples`` ``[M]`` with "observation", "lidar" and "action";
+        ``kept`` = the number of episodes whose replay succeeded.
+    """
+    e = int(states.batch_size[0])
+    if len(actions) != e:
+        raise ValueError(f"{len(actions)} action sequences for {e} start states")
+    lengths = torch.tensor([len(a) for a in actions])
+    horizon = int(lengths.max()) if e else 0
+    acts = torch.zeros(e, horizon, 2)
+    for j, seq in enumerate(actions):
+        if len(seq):
+            acts[j, : len(seq)] = torch.as_tensor(seq, dtype=torch.float32)
+    env = TruckEnv(num_envs=e, config=dataclasses.replace(env_cfg, compile=False), seed=0)
+    env.set_difficulty(difficulty)
+    td = env.set_state(states.clone())
+    alive = torch.ones(e, dtype=torch.bool)
+    succeeded = torch.zeros(e, dtype=torch.bool)
+    rows: list[tuple[Tensor, Tensor, Tensor, Tensor]] = []
+    for t in range(horizon):
+        take = alive & (t < lengths)
+        rows.append((take, td[OBS_KEY], td[LIDAR_KEY], acts[:, t]))
+        nxt = env.step(td.set("action", acts[:, t]))["next"]
+        done = nxt["done"].squeeze(-1)
+        succeeded |= take & done & nxt["success"].squeeze(-1)
+        alive &= ~done & (t + 1 < lengths)
+        td = nxt
+    env.close()
+    keep = [(m & succeeded, o, li, a) for m, o, li, a in rows]
+    samples = TensorDict(
+        {
+            OBS_KEY: torch.cat([o[m] for m, o, _, _ in keep]),
+            LIDAR_KEY: torch.cat([li[m] for m, _, li, _ in keep]),
+            "action": torch.cat([a[m] for m, _, _, a in keep]),
+        }
+        if keep
+        else {
+            OBS_KEY: torch.zeros(0, env.task.num_features),
+            LIDAR_KEY: torch.zeros(0, env_cfg.lidar.num_beams),
+            "action": torch.zeros(0, 2),
+        },
+        batch_size=[sum(int((m & succeeded).sum()) for m, *_ in keep)],
+    )
+    return samples, int(succeeded.sum())
+
+
+def behaviour_clone(
+    ac: ActorCritic,
+    samples: TensorDict,
+    epochs: int,
+    lr: float,
+    batch_size: int,
+    seed: int = 0,
+) -> list[float]:
+    """Fit the actor's mean to ``samples["action"]`` (MSE); return the mean loss of each epoch.
+
+    Only the trunk and the mean head move (the log-std has no gradient in this loss; the value
+    head is not in the actor).
+    """
+    n = int(samples.batch_size[0])
+    if n == 0:
+        raise ValueError("no demonstration samples to clone")
+    gen = torch.Generator().manual_seed(seed)
+    params = [p for name, p in ac.actor.named_parameters() if not name.endswith("log_std")]
+    opt = torch.optim.Adam(params, lr=lr)
+    losses = []
+    for _ in range(epochs):
+        order = torch.randperm(n, generator=gen)
+        total = 0.0
+        for start in range(0, n, batch_size):
+            b = samples[order[start : start + batch_size]]
+            loc = ac.actor(b.select(OBS_KEY, LIDAR_KEY))["loc"]
+            loss = (loc - b["action"]).square().mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += float(loss.detach()) * int(b.batch_size[0])
+        losses.append(total / n)
+    return losses
+
+
+def set_action_std(ac: ActorCritic, std: float) -> None:
+    """Set the policy's state-independent std [action units] for every action dimension."""
+    with torch.no_grad():
+        ac.gaussian.log_std.fill_(math.log(std))
+
+
+def plan_demos(plan: dict[str, Any]) -> tuple[list[int], list[list[list[float]]]]:
+    """Scene indices and action sequences of the successful episodes of a ``plan.json``."""
+    episodes = [e for e in plan["per_episode"] if e["success"]]
+    return [int(e["scene_index"]) for e in episodes], [e["actions"] for e in episodes]
