@@ -18,6 +18,19 @@ def test_defaults_compose_to_the_dataclass_defaults():
     assert ec == EvaluateConfig(checkpoint="x")
 
 
+def test_demos_experiment_is_fast_plus_its_three_values():
+    fast = to_config(TrainConfig, compose_config("train"))
+    demos = to_config(TrainConfig, compose_config("train", "experiment=demos"))
+    assert (demos.ppo.gamma, demos.env.task.reward.time, demos.curriculum.max_difficulty) == (
+        0.998,
+        -0.005,
+        6.0,
+    )
+    for part in ("collector", "model", "log", "checkpoint"):
+        assert getattr(demos, part) == getattr(fast, part), part
+    assert demos.ppo.lr == fast.ppo.lr and demos.env.compile == fast.env.compile
+
+
 @pytest.mark.parametrize("lon", LONGITUDINAL_MODES)
 @pytest.mark.parametrize("lat", LATERAL_MODES)
 def test_every_control_preset_composes(lon, lat):
