@@ -46,6 +46,7 @@ def test_wheel_installs_in_a_fresh_venv_and_runs_from_elsewhere(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     for name in ("train", "evaluate", "play", "export", "control/accel_rate", "experiment/fast"):
         assert f"truckrl/conf/{name}.yaml" in names, name
+    assert "truckrl/pretrained/intersection.pt" in names  # checkpoint=pretrained
     times["build"] = time.monotonic() - t0
 
     t0 = time.monotonic()
@@ -71,5 +72,10 @@ def test_wheel_installs_in_a_fresh_venv_and_runs_from_elsewhere(tmp_path):
     assert "format: onnx" in run([py, "-m", "truckrl.export", "--help"], elsewhere).stdout
     play = run([py, "-m", "truckrl.play", "headless=true", "max_frames=3"], elsewhere)
     assert "3 frames, 2 steps" in play.stdout
+    shipped = run(
+        [py, "-m", "truckrl.play", "checkpoint=pretrained", "headless=true", "max_frames=3"],
+        elsewhere,
+    )
+    assert "3 frames, 2 steps" in shipped.stdout
     times["run"] = time.monotonic() - t0
     print("wheel test times [s]: " + ", ".join(f"{k} {v:.0f}" for k, v in times.items()))
