@@ -81,6 +81,10 @@ def evaluate(ec: EvaluateConfig) -> dict:
         ConfigError: the output cannot be written: before any episode runs when the check finds
             it, or after printing the results when the final write fails.
     """
+    from truckrl.agent.checkpoint import resolve_checkpoint
+
+    resolve_checkpoint(ec.checkpoint)  # a wrong path is reported before torchrl loads
+
     from truckrl.agent.categories import episode_bins, format_category_table, summarize_by_category
     from truckrl.agent.policy import load_policy
     from truckrl.agent.rollout import evaluate_policy, summarize
