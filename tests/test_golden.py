@@ -8,12 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from tests.golden.golden import PPO_FILE, ROLLOUT_FILE, golden_ppo, golden_rollout
+from tests.golden.golden import PPO_FILE, ROLLOUT_FILE, golden_ppo, golden_rollout, load_golden
 
 
 def _compare(expected_file, actual: dict[str, np.ndarray]) -> None:
-    with np.load(expected_file, allow_pickle=False) as f:
-        expected = {k: f[k] for k in f.files}
+    expected = load_golden(expected_file)
     assert sorted(actual) == sorted(expected), "the set of output keys changed"
     for k, v in expected.items():
         a = actual[k]

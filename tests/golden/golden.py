@@ -6,7 +6,8 @@ alter outputs, and say why in the commit message; a refactor must leave them unt
 * ``rollout.npz``: ``TruckEnv(num_envs=64, seed=0)`` with the default config, 200 steps of
   actions drawn from a fixed generator (uniform in [-1.2, 1.2], so the clamp is exercised, plus a
   NaN action every 37th step on truck 5 for the non-finite guard), with partial resets. Every
-  leaf of every step is stored (root and ``next``).
+  leaf of every step is kept (root and ``next``); the file stores a root entry only where it is
+  not the previous step's ``next`` entry (:func:`pack`), which keeps it under 2 MiB.
 * ``ppo.npz``: one PPO update (2 epochs x 4 minibatches) on a 16-truck x 32-step rollout of the
   paper's network under ``torch.manual_seed(0)``: the loss metrics and every parameter after it.
 """
@@ -52,6 +53,52 @@ def golden_rollout() -> dict[str, np.ndarray]:
     return _flat(td)
 
 
+#: Suffix of a packed root key: its values at the steps where an episode (re)starts.
+FRESH = "@fresh"
+
+
+def fresh_steps(rollout: dict[str, np.ndarray]) -> np.ndarray:
+    """``[N, T]`` bool: step 0 and every step after an episode ended (partial resets)."""
+    done = rollout["next/done"][..., 0]
+    return np.concatenate((np.ones_like(done[:, :1]), done[:, :-1]), axis=1)
+
+
+def pack(rollout: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The rollout without what it stores twice: a root entry at step ``t + 1`` is the ``next``
+    entry of step ``t`` unless an episode restarted there, so a root key that has a ``next`` twin
+    keeps only its values at :func:`fresh_steps` (``<key>@fresh``). Checked to round-trip."""
+    fresh = fresh_steps(rollout)
+    out = dict(rollout)
+    for key in [k for k in rollout if f"next/{k}" in rollout]:
+        out.pop(key)
+        out[key + FRESH] = rollout[key][fresh]
+    restored = unpack(out)
+    assert sorted(restored) == sorted(rollout)
+    for key, value in rollout.items():
+        assert np.array_equal(restored[key], value, equal_nan=True), key
+    return out
+
+
+def unpack(packed: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Inverse of :func:`pack`: every root key back at every step."""
+    out = {k: v for k, v in packed.items() if not k.endswith(FRESH)}
+    fresh = fresh_steps(out)
+    for key in [k for k in packed if k.endswith(FRESH)]:
+        name = key[: -len(FRESH)]
+        nxt = out[f"next/{name}"]
+        full = np.concatenate((nxt[:, :1], nxt[:, :-1]), axis=1).copy()
+        full[fresh] = packed[key]
+        out[name] = full
+    return out
+
+
+def load_golden(path: Path) -> dict[str, np.ndarray]:
+    """A recording, rollout keys unpacked (see :func:`pack`)."""
+    with np.load(path, allow_pickle=False) as f:
+        data = {k: f[k] for k in f.files}
+    return unpack(data) if any(k.endswith(FRESH) for k in data) else data
+
+
 def golden_ppo() -> dict[str, np.ndarray]:
     """Loss metrics and parameters after one PPO update on a fixed rollout."""
     from truckrl.agent.network import ModelConfig, make_actor_critic
@@ -74,7 +121,7 @@ def golden_ppo() -> dict[str, np.ndarray]:
 
 def main() -> None:
     torch.set_num_threads(1)
-    np.savez_compressed(ROLLOUT_FILE, **golden_rollout())
+    np.savez_compressed(ROLLOUT_FILE, **pack(golden_rollout()))
     np.savez_compressed(PPO_FILE, **golden_ppo())
     print(f"wrote {ROLLOUT_FILE} ({ROLLOUT_FILE.stat().st_size:,} B), {PPO_FILE}")
 

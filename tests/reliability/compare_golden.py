@@ -14,12 +14,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from tests.golden.golden import PPO_FILE, ROLLOUT_FILE, golden_ppo, golden_rollout
+from tests.golden.golden import PPO_FILE, ROLLOUT_FILE, golden_ppo, golden_rollout, load_golden
 
 
 def compare(name, path, actual: dict[str, np.ndarray]) -> None:
-    with np.load(path, allow_pickle=False) as f:
-        expected = {k: f[k] for k in f.files}
+    expected = load_golden(path)
     assert sorted(actual) == sorted(expected), "the set of output keys changed"
     same = 0
     for k in sorted(expected):
