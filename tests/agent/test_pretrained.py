@@ -58,6 +58,8 @@ def test_the_shipped_intersection_policy_loads_and_drives():
     from truckrl.agent.rollout import evaluate_policy
 
     policy = load_policy("pretrained")
-    assert policy.difficulty >= 1.0
+    assert policy.difficulty == 6.0  # trained to the paper's goal (truckrl/pretrained/README.md)
     results, _, _ = evaluate_policy(policy.actor, policy.env_config, 2.0, episodes=8, seed=1)
-    assert int(results["length"].min()) >= 1 and results["success"].shape == (8,)
+    # an untrained policy succeeds in none of these; the shipped one in 7 of 8 (88.6 % at
+    # difficulty 6 on 1,000 scenes): a wrong or broken file fails here
+    assert int(results["success"].sum()) >= 6
