@@ -59,7 +59,7 @@ def clear_scene(env, goal=(40.0, 0.0, 0.0), **overrides):
         s[k] = torch.zeros(n)
     for k, v in overrides.items():
         s[k] = v
-    s.update(env.task.errors(s["pose"], s["goal"]))
+    s.update(env.task.errors(s))
     return env.set_state(s)
 
 

@@ -14,7 +14,6 @@ from tensordict import TensorDict
 from torch import Tensor
 
 from truckrl.sim.validation import param, validate
-from truckrl.sim.vehicle import sample_vehicle_params
 from truckrl.task.base import Task
 from truckrl.task.config import TaskConfig
 from truckrl.task.schema import Quantity
@@ -38,7 +37,7 @@ class ReachTask(Task):
     num_extras = 1  # the goal distance, an observation extra
 
     def sample(self, m: int, rng: torch.Generator, device: torch.device) -> TensorDict:
-        params = sample_vehicle_params(self.cfg.vehicle, m, rng, device)
+        params = self.sample_params(m, rng, device)
         start = torch.zeros(m, 3, device=device)
         goal = torch.zeros(m, 3, device=device)
         goal[:, 0] = self.cfg.task.distance
@@ -51,7 +50,8 @@ class ReachTask(Task):
         }
         return self.initial_state(params, scene, device)
 
-    def errors(self, pose: Tensor, goal: Tensor) -> dict[str, Tensor]:
+    def errors(self, s: dict[str, Any]) -> dict[str, Tensor]:
+        pose, goal = s["pose"], s["goal"]
         return {"distance_error": torch.hypot(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1])}
 
     def success(self, err: dict[str, Tensor], tol_pos: Tensor, tol_ang: Tensor) -> Tensor:

@@ -52,7 +52,7 @@ def obs():
     s["mask"] = torch.zeros_like(s["mask"])
     s["segments"][0, 0] = torch.tensor([-30.0, wall_y, 50.0, wall_y])
     s["mask"][0, 0] = True
-    s.update(env.task.errors(s["pose"], s["goal"]))
+    s.update(env.task.errors(s))
     td = env.set_state(s)
     return td["observation"][0].double(), td["lidar"][0].double()
 

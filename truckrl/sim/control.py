@@ -12,7 +12,8 @@ lateral     steer [rad]     steer_rate      steer_accel
                             [rad/s]         [rad/s^2]
 ==========  ==============  ==============  ===============
 
-with per-env bounds from the vehicle params: speed in ``[min_speed, max_speed]``, every other
+with per-env bounds from the vehicle params: speed in ``[min_speed, max_speed]`` (a control built
+with ``reverse=True``: ``[-max_reverse_speed, max_speed]``, per truck), every other
 quantity in ``[-max_q, max_q]`` (``max_accel``, ``max_jerk``, ``max_steer``, ``max_steer_rate``,
 ``max_steer_accel``). An action component ``u`` is clamped to ``[-1, 1]`` and mapped affinely
 onto the commanded quantity's bounds (``u * max_q``; speed: ``-1 -> min_speed``,
@@ -55,7 +56,14 @@ from types import MappingProxyType
 import torch
 from torch import Tensor
 
-from truckrl.sim.validation import check_choice, check_range, from_mapping, param, validate
+from truckrl.sim.validation import (
+    ConfigError,
+    check_choice,
+    check_range,
+    from_mapping,
+    param,
+    validate,
+)
 
 #: The control-mode vocabulary, the one place it is spelled out: per axis, per mode (in chain
 #: order 0, 1, 2), the state key the mode commands and the vehicle parameter that bounds it.
@@ -139,15 +147,26 @@ class Control:
         cfg: :class:`ControlConfig` or a mapping with its fields (e.g. a Hydra node).
         dt: control step [s], ``> 0`` (paper: 0.1 s).
         min_speed: lower speed bound [m/s] (``VehicleConfig.min_speed``; 0 = forward only).
+        reverse: the lower speed bound is each truck's ``-max_reverse_speed`` param instead
+            (tasks that reverse; ``min_speed`` must then be 0).
 
     Raises:
-        ConfigError: unknown mode, ``dt <= 0`` or non-finite ``min_speed``.
+        ConfigError: unknown mode, ``dt <= 0``, non-finite ``min_speed``, or ``reverse`` with a
+            nonzero ``min_speed``.
     """
 
-    def __init__(self, cfg: ControlConfig, dt: float, min_speed: float = 0.0) -> None:
+    def __init__(
+        self, cfg: ControlConfig, dt: float, min_speed: float = 0.0, reverse: bool = False
+    ) -> None:
         self.cfg = from_mapping(ControlConfig, cfg, "control")
         self.dt = check_range("dt", dt, 0.0, math.inf, lo_open=True, hi_open=True)
         self.min_speed = check_range("min_speed", min_speed)
+        self.reverse = bool(reverse)
+        if self.reverse and self.min_speed != 0.0:
+            raise ConfigError(
+                f"env.vehicle.min_speed = {self.min_speed} must be 0 for a task that reverses "
+                "(its lower bound is -env.vehicle.max_reverse_speed)"
+            )
         self._long_order = LONGITUDINAL_MODES.index(self.cfg.longitudinal)
         self._lat_order = LATERAL_MODES.index(self.cfg.lateral)
 
@@ -163,6 +182,13 @@ class Control:
         if self.min_speed > 0.0:
             state["speed"].fill_(self.min_speed)
         return state
+
+    def speed_floor(self, params: Mapping[str, Tensor]) -> Tensor:
+        """Lower speed bound ``[N]`` [m/s]: ``-max_reverse_speed`` with ``reverse``, else
+        ``min_speed`` (``params``: per-truck vehicle parameters, uses ``max_speed`` for shape)."""
+        if self.reverse:
+            return -params["max_reverse_speed"]
+        return torch.full_like(params["max_speed"], self.min_speed)
 
     def step(
         self, action: Tensor, state: dict[str, Tensor], params: dict[str, Tensor]
@@ -180,7 +206,7 @@ class Control:
         """
         u = action.clamp(-1.0, 1.0)
         hi_long = [params[k] for k in _LONG_LIMITS]
-        lo_long = [torch.full_like(hi_long[0], self.min_speed), -hi_long[1], -hi_long[2]]
+        lo_long = [self.speed_floor(params), -hi_long[1], -hi_long[2]]
         hi_lat = [params[k] for k in _LAT_LIMITS]
         lo_lat = [-h for h in hi_lat]
         new_long = self._chain(

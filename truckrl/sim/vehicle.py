@@ -65,6 +65,10 @@ PARAM_KEYS: tuple[str, ...] = (
     "max_steer_accel",
 )
 
+#: Randomized keys drawn only for trucks that may reverse (:func:`sample_vehicle_params` with
+#: ``reverse=True``), after the :data:`PARAM_KEYS` draw, so forward-only scenes are unchanged.
+REVERSE_KEYS: tuple[str, ...] = ("max_reverse_speed",)
+
 
 def _range(default: tuple[float, float], hi: float, unit: str, doc: str) -> tuple[float, float]:
     """A randomized ``[min, max]`` pair whose values must lie in ``(0, hi]``."""
@@ -124,6 +128,12 @@ class VehicleConfig:
     max_steer_accel: tuple[float, float] = _range(
         (1.0, 3.0), 100.0, "rad/s^2", "steering acceleration limit (both signs)"
     )
+    max_reverse_speed: tuple[float, float] = _range(
+        (1.5, 3.0),
+        20.0,
+        "m/s",
+        "reverse speed limit (speed >= -max_reverse_speed); drawn only for tasks that reverse",
+    )
     min_speed: float = param(
         0.0,
         lo=-50.0,
@@ -153,19 +163,31 @@ class VehicleConfig:
 
 
 def sample_vehicle_params(
-    cfg: VehicleConfig, n: int, generator: torch.Generator | None = None, device=None
+    cfg: VehicleConfig,
+    n: int,
+    generator: torch.Generator | None = None,
+    device=None,
+    reverse: bool = False,
 ) -> dict[str, Tensor]:
     """Draw ``n`` trucks uniformly from the configured ranges.
 
+    Args:
+        reverse: also draw :data:`REVERSE_KEYS` (a second draw after the first, so the
+            :data:`PARAM_KEYS` values of a seed do not depend on it).
+
     Returns:
-        ``{key: Tensor[n]}`` for every key of :data:`PARAM_KEYS` (float32, units in module doc).
+        ``{key: Tensor[n]}`` for every key of :data:`PARAM_KEYS` (and :data:`REVERSE_KEYS` with
+        ``reverse``), float32, units in the module doc.
     """
-    bounds = cfg.bounds()
-    u = torch.rand(len(PARAM_KEYS), n, generator=generator, device=device)
     out = {}
-    for i, key in enumerate(PARAM_KEYS):
-        lo, hi = bounds[key]
-        out[key] = lo + (hi - lo) * u[i]
+    groups = [(PARAM_KEYS, cfg.bounds())]
+    if reverse:
+        groups.append((REVERSE_KEYS, {k: getattr(cfg, k) for k in REVERSE_KEYS}))
+    for keys, bounds in groups:
+        u = torch.rand(len(keys), n, generator=generator, device=device)
+        for i, key in enumerate(keys):
+            lo, hi = bounds[key]
+            out[key] = lo + (hi - lo) * u[i]
     return out
 
 

@@ -8,7 +8,8 @@ State (a ``TensorDict`` or a plain dict with ``batch [N]``)::
     pose        [N, 4]  tractor rear-axle x, y [m], heading theta [rad], articulation phi [rad]
     goal        [N, 3]  goal rear-axle x, y [m], heading [rad] (trailer aligned)
     segments    [N, E, 4] scene segments (x0, y0, x1, y1) [m];  mask [N, E] bool; kind [N, E] int8
-    params      {key: [N]}  per-truck vehicle parameters (truckrl.sim.vehicle.PARAM_KEYS)
+    params      {key: [N]}  per-truck vehicle parameters (truckrl.sim.vehicle.PARAM_KEYS, plus
+                            REVERSE_KEYS for a task that reverses)
     step_count  [N] int64
     speed, accel, jerk, steer, steer_rate, steer_accel   [N]  control state (truckrl.sim.control)
     <error keys of the task>  [N]  errors to the goal (intersection: pos_error [m], ...)
@@ -19,12 +20,14 @@ scene, start and goal), :meth:`Task.errors`, :meth:`Task.success`, :meth:`Task.r
 (and their weights, in the task's config) and :meth:`Task.observation_extras`. What every task
 shares is final here: :meth:`Task.step` (control + kinematics), :meth:`Task.outcome`
 (collision, jack-knife, success, timeout), :meth:`Task.observe` and :meth:`Task.transition`
-(all of it, the function the env runs and compiles).
+(all of it, the function the env runs and compiles). A task that sets :attr:`Task.reverse`
+gets trucks with a reverse speed limit and a control whose speed goes down to it.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import torch
@@ -34,7 +37,13 @@ from truckrl.sim.collision import truck_collides
 from truckrl.sim.control import CONTROL_KEYS, Control, commanded
 from truckrl.sim.geometry import rotate, to_local
 from truckrl.sim.lidar import beam_angles, lidar_scan
-from truckrl.sim.vehicle import PARAM_KEYS, jackknifed, kinematics_step, normalized_params
+from truckrl.sim.vehicle import (
+    PARAM_KEYS,
+    jackknifed,
+    kinematics_step,
+    normalized_params,
+    sample_vehicle_params,
+)
 from truckrl.task.config import SENSOR_SCALE, EnvConfig, TaskConfig
 from truckrl.task.schema import Quantity
 
@@ -82,18 +91,22 @@ class Task:
         config_class: its :class:`TaskConfig` subclass.
         error_quantities: the errors to the goal it reports, in state and outputs.
         reward_keys: names of its reward terms, in summation order.
+        reverse: whether its trucks may reverse (default False: forward only, the paper's).
     """
 
     name: ClassVar[str]
     config_class: ClassVar[type[TaskConfig]]
     error_quantities: ClassVar[tuple[Quantity, ...]]
     reward_keys: ClassVar[tuple[str, ...]]
+    reverse: ClassVar[bool] = False
 
     def __init__(self, cfg: EnvConfig) -> None:
         if not isinstance(cfg.task, self.config_class):
             raise TypeError(f"{type(self).__name__} needs env.task = {self.config_class.__name__}")
         self.cfg = cfg
-        self.control = Control(cfg.control, cfg.dt, min_speed=cfg.vehicle.min_speed)
+        self.control = Control(
+            cfg.control, cfg.dt, min_speed=cfg.vehicle.min_speed, reverse=self.reverse
+        )
         self.rel_angles = beam_angles(cfg.lidar.num_beams, cfg.lidar.fov)
         (_, lon), (_, lat) = commanded(cfg.control.longitudinal, cfg.control.lateral)
         self.param_index = torch.tensor([PARAM_KEYS.index(k) for k in (*OBSERVED_PARAMS, lon, lat)])
@@ -123,6 +136,13 @@ class Task:
         """``m`` new episodes at their start (state layout in the module doc)."""
         raise NotImplementedError
 
+    def sample_params(
+        self, m: int, rng: torch.Generator, device: torch.device
+    ) -> dict[str, Tensor]:
+        """``m`` trucks ``{key: [m]}`` from ``env.vehicle`` (with a reverse limit if
+        :attr:`reverse`)."""
+        return sample_vehicle_params(self.cfg.vehicle, m, rng, device, reverse=self.reverse)
+
     def complete_state(self, state: TensorDict) -> TensorDict:
         """``state`` with any missing :attr:`extra_state_keys` derived from it (in place).
 
@@ -131,8 +151,13 @@ class Task:
         """
         return state
 
-    def errors(self, pose: Tensor, goal: Tensor) -> dict[str, Tensor]:
-        """Errors to the goal ``{key: [N]}`` for :attr:`error_quantities`."""
+    def errors(self, s: Mapping[str, Any]) -> dict[str, Tensor]:
+        """Errors to the goal ``{key: [N]}`` for :attr:`error_quantities`.
+
+        Args:
+            s: the state (module doc) after the step: ``pose``, ``goal``, ``params`` and the
+                control state (``speed`` [m/s], ...) are there.
+        """
         raise NotImplementedError
 
     def success(self, err: dict[str, Tensor], tol_pos: Tensor, tol_ang: Tensor) -> Tensor:
@@ -173,7 +198,7 @@ class Task:
         pose, _ = kinematics_step(
             s["pose"], ctrl["speed"], ctrl["steer"], params, cfg.dt, cfg.substeps
         )
-        err = self.errors(pose, s["goal"])
+        err = self.errors({**s, **ctrl, "pose": pose})
         return {"pose": pose, "step_count": s["step_count"] + 1, **ctrl, **err}
 
     def outcome(self, s: dict[str, Any], difficulty: Tensor) -> dict[str, Tensor]:
@@ -319,5 +344,5 @@ class Task:
         )
         if scene.get("route"):
             td["route"] = TensorDict(scene["route"], batch_size=[m])
-        td.update(self.errors(td["pose"], td["goal"]))
+        td.update(self.errors(td))
         return td

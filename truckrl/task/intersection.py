@@ -30,7 +30,6 @@ from torch import Tensor
 from truckrl.sim.geometry import wrap_angle
 from truckrl.sim.scene import ROUTE_KEYS, SceneConfig, generate_scenes
 from truckrl.sim.validation import param, validate
-from truckrl.sim.vehicle import sample_vehicle_params
 from truckrl.task.base import Task
 from truckrl.task.config import TaskConfig
 from truckrl.task.schema import Quantity
@@ -100,7 +99,7 @@ class IntersectionTask(Task):
     extra_state_keys = ("route_path",)
 
     def sample(self, m: int, rng: torch.Generator, device: torch.device) -> TensorDict:
-        params = sample_vehicle_params(self.cfg.vehicle, m, rng, device)
+        params = self.sample_params(m, rng, device)
         scenes = generate_scenes(self.cfg.task.scene, params, rng, device)
         scene = {k: getattr(scenes, k) for k in ("start", "goal", "segments", "mask", "kind")}
         scene["route"] = {k: getattr(scenes, k) for k in ROUTE_KEYS}
@@ -112,9 +111,10 @@ class IntersectionTask(Task):
             state["route_path"] = route_path(state["pose"][:, :3], state["goal"])
         return state
 
-    def errors(self, pose: Tensor, goal: Tensor) -> dict[str, Tensor]:
+    def errors(self, s: dict[str, Any]) -> dict[str, Tensor]:
         """Position of the tractor rear axle to the goal [m]; tractor and trailer heading to the
         goal heading [rad] (the goal is a rear-axle pose with the trailer aligned)."""
+        pose, goal = s["pose"], s["goal"]
         pos = torch.hypot(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1])
         tractor = wrap_angle(goal[:, 2] - pose[:, 2]).abs()
         trailer = wrap_angle(goal[:, 2] - pose[:, 2] - pose[:, 3]).abs()
