@@ -188,3 +188,36 @@ def test_corrupt_checkpoint_raises_checkpoint_error(tiny_checkpoint, tmp_path):
     bad.write_bytes((run / "checkpoints" / "last.pt").read_bytes()[:500])
     with pytest.raises(CheckpointError, match="cannot read"):
         evaluate(EvaluateConfig(checkpoint=str(bad), episodes=2, seed=0))
+
+
+def test_planner_policy_plays_the_checkpoints_scenes_and_writes_beside_the_run(
+    tiny_checkpoint, monkeypatch
+):
+    """``policy=planner`` plans the scenes the checkpoint is scored on (same env config, seed and
+    difficulty): its per-route counts equal the policy's, and the JSON lands beside the run."""
+    import truckrl.agent.planner as planner_module
+
+    run, _, _ = tiny_checkpoint
+    small = planner_module.PlannerConfig(compile=False, samples=8, iterations=1)
+    monkeypatch.setattr(evaluate_module, "planner_config", lambda: small)
+    base = dict(checkpoint=str(run), episodes=3, seed=7, difficulty=0.0)
+    planned = evaluate(EvaluateConfig(policy="planner", **base))
+    scored = evaluate(EvaluateConfig(**base))
+    assert planned["policy"] == "planner" and scored["policy"] == "checkpoint"
+    assert planned["planner_rollouts"] > 0
+    out = planned["output"]
+    assert out.endswith("eval/planner-0-7.json") and str(run) in out
+    assert json.loads(open(out).read())["policy"] == "planner"
+    route = [(r["bin"], r["count"]) for r in planned["categories"] if r["dimension"] == "route"]
+    assert route == [
+        (r["bin"], r["count"]) for r in scored["categories"] if r["dimension"] == "route"
+    ]
+    assert planned["tolerance_position_m"] == scored["tolerance_position_m"] == 30.0
+
+
+def test_planner_policy_needs_no_checkpoint_but_the_policy_does():
+    assert EvaluateConfig(policy="planner").checkpoint is None
+    with pytest.raises(ConfigError, match="checkpoint is required"):
+        EvaluateConfig()
+    with pytest.raises(ConfigError, match="policy"):
+        EvaluateConfig(policy="oracle")

@@ -143,9 +143,19 @@ class TrainConfig:
 class EvaluateConfig:
     """``python -m truckrl.evaluate``: deterministic evaluation of a checkpoint."""
 
-    checkpoint: str | None = param(None, doc="checkpoint file or run dir (required)")
+    checkpoint: str | None = param(
+        None, doc="checkpoint file or run dir (required with policy=checkpoint)"
+    )
+    policy: str = param(
+        "checkpoint",
+        choices=("checkpoint", "planner"),
+        doc="checkpoint: its mean action; planner: the CEM planner baseline on the same scenes",
+    )
     difficulty: float | None = param(
-        None, lo=0.0, hi=MAX_DIFFICULTY, doc="null: the checkpoint's curriculum difficulty"
+        None,
+        lo=0.0,
+        hi=MAX_DIFFICULTY,
+        doc="null: the checkpoint's curriculum difficulty (planner without checkpoint: 6)",
     )
     episodes: int = param(100, lo=1, hi=10_000_000, doc="one episode per seeded scene")
     seed: int = param(12345, lo=0, hi=SEED_MAX, doc="scene seed: same seed, same scenes")
@@ -157,8 +167,10 @@ class EvaluateConfig:
     def __post_init__(self) -> None:
         validate(self)
         check_device("device", self.device)
-        if not self.checkpoint:
-            raise ConfigError("checkpoint is required: checkpoint=<file or run dir>")
+        if not self.checkpoint and self.policy == "checkpoint":
+            raise ConfigError(
+                "checkpoint is required: checkpoint=<file or run dir> (or policy=planner)"
+            )
 
 
 ON_DONE = ("new", "same", "wait")

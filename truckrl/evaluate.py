@@ -73,8 +73,18 @@ def write_json(path: Path, data: dict) -> None:
         raise
 
 
+#: Difficulty the planner is scored at when neither ``difficulty`` nor a checkpoint says (the
+#: paper's final curriculum level).
+PLANNER_DIFFICULTY = 6.0
+
+
 def evaluate(ec: EvaluateConfig) -> dict:
     """Load, check the output, run, summarise, print and write; return the JSON-ready result.
+
+    With ``policy=planner`` the CEM planner (:mod:`truckrl.agent.planner`) plays the same scenes
+    instead of the checkpoint's policy: with the checkpoint's env config and difficulty when one
+    is given (a side-by-side comparison), else the default env at difficulty 6; its JSON goes to
+    ``planner-<difficulty>-<seed>.json`` (beside the run, or under ``outputs/eval/``).
 
     Raises:
         CheckpointError: the checkpoint cannot be used (before any episode runs).
@@ -83,27 +93,21 @@ def evaluate(ec: EvaluateConfig) -> dict:
     """
     from truckrl.agent.checkpoint import resolve_checkpoint
 
-    resolve_checkpoint(ec.checkpoint)  # a wrong path is reported before torchrl loads
+    if ec.checkpoint:
+        resolve_checkpoint(ec.checkpoint)  # a wrong path is reported before torchrl loads
 
     from truckrl.agent.categories import episode_bins, format_category_table, summarize_by_category
-    from truckrl.agent.policy import load_policy
-    from truckrl.agent.rollout import evaluate_policy, summarize
+    from truckrl.agent.rollout import summarize
     from truckrl.sim.scene import ROUTE_KEYS
     from truckrl.sim.validation import ConfigError
 
-    policy = load_policy(ec.checkpoint, ec.device)
-    difficulty = policy.difficulty if ec.difficulty is None else ec.difficulty
-    output = Path(ec.output) if ec.output else default_output(policy.path, difficulty, ec.seed)
-    check_writable(output)
-    results, (tol_pos, tol_deg), errors = evaluate_policy(
-        policy.actor, policy.env_config, difficulty, ec.episodes, ec.seed, ec.device
-    )
+    if ec.policy == "planner":
+        summary_head, results, (tol_pos, tol_deg), errors, output = _run_planner(ec)
+    else:
+        summary_head, results, (tol_pos, tol_deg), errors, output = _run_checkpoint(ec)
     has_route = all(k in results for k in ROUTE_KEYS)
     summary = {
-        "checkpoint": str(policy.path),
-        "iteration": int(policy.counters["iteration"]),
-        "frames": int(policy.counters["frames"]),
-        "difficulty": difficulty,
+        **summary_head,
         "tolerance_position_m": tol_pos,
         "tolerance_heading_deg": tol_deg,
         "seed": ec.seed,
@@ -126,6 +130,71 @@ def evaluate(ec: EvaluateConfig) -> dict:
             f"output={output}: the results above were not written ({e.strerror or e})"
         ) from None
     return {**summary, "output": str(output)}
+
+
+def _run_checkpoint(ec: EvaluateConfig):
+    """The checkpoint's mean action on the scenes: ``(head, results, tolerance, errors, output)``."""
+    from truckrl.agent.policy import load_policy
+    from truckrl.agent.rollout import evaluate_policy
+
+    policy = load_policy(ec.checkpoint, ec.device)
+    difficulty = policy.difficulty if ec.difficulty is None else ec.difficulty
+    output = Path(ec.output) if ec.output else default_output(policy.path, difficulty, ec.seed)
+    check_writable(output)
+    results, tolerance, errors = evaluate_policy(
+        policy.actor, policy.env_config, difficulty, ec.episodes, ec.seed, ec.device
+    )
+    head = {
+        "checkpoint": str(policy.path),
+        "policy": "checkpoint",
+        "iteration": int(policy.counters["iteration"]),
+        "frames": int(policy.counters["frames"]),
+        "difficulty": difficulty,
+    }
+    return head, results, tolerance, errors, output
+
+
+def planner_config():
+    """The planner's settings for ``policy=planner``: the defaults of
+    :class:`~truckrl.agent.planner.PlannerConfig` (the README's baseline)."""
+    from truckrl.agent.planner import PlannerConfig
+
+    return PlannerConfig()
+
+
+def _run_planner(ec: EvaluateConfig):
+    """The planner on the scenes: ``(head, results, tolerance, errors, output)``."""
+    import time
+
+    from truckrl.agent.planner import plan_episodes
+    from truckrl.task import EnvConfig
+
+    if ec.checkpoint:
+        from truckrl.agent.policy import load_policy
+
+        policy = load_policy(ec.checkpoint, "cpu")
+        env_cfg, path = policy.env_config, policy.path
+        difficulty = policy.difficulty if ec.difficulty is None else ec.difficulty
+        output = default_output(path, difficulty, ec.seed)
+        output = output.with_name(f"planner-{output.name}")
+    else:
+        env_cfg, path = EnvConfig(), None
+        difficulty = PLANNER_DIFFICULTY if ec.difficulty is None else ec.difficulty
+        output = Path("outputs") / EVAL_DIR / f"planner-{difficulty:g}-{ec.seed}.json"
+    output = Path(ec.output) if ec.output else output
+    check_writable(output)
+    t0 = time.perf_counter()
+    results, tolerance, errors = plan_episodes(
+        env_cfg, difficulty, ec.episodes, ec.seed, planner_config(), ec.device
+    )
+    head = {
+        "checkpoint": str(path) if path else None,
+        "policy": "planner",
+        "difficulty": difficulty,
+        "planner_seconds": time.perf_counter() - t0,
+        "planner_rollouts": int(results["rollouts"]),
+    }
+    return head, results, tolerance, errors, output
 
 
 def print_table(s: dict, errors: tuple[Quantity, ...]) -> None:
