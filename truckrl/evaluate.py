@@ -5,9 +5,9 @@
 Runs one deterministic episode in each of ``episodes`` scenes drawn from ``seed`` (the same seed
 gives the same scenes, so checkpoints are compared on identical tasks) at ``difficulty`` (default:
 the checkpoint's curriculum difficulty), with the env config saved in the checkpoint. Prints the
-outcome rates and mean / p95 final errors, then the same per scene category (route, turn angle
-split left / right, crossing angle, trailer length, road width, goal distance; see
-:mod:`truckrl.agent.categories`), then everything as one line of JSON (the category rows under
+outcome rates and mean / p95 final errors, then the same per scene category (intersection: route,
+turn angle split left / right, crossing angle, trailer length, road width, goal distance; other
+tasks: their ``category_dims``; see :mod:`truckrl.agent.categories`), then everything as one line of JSON (the category rows under
 ``"categories"``), and writes that JSON to ``output``: by default
 ``<run dir of the checkpoint>/eval/<difficulty>-<seed>.json``, beside the evaluated run. The
 output location is checked before any episode runs; if the write still fails at the end, the
@@ -96,31 +96,31 @@ def evaluate(ec: EvaluateConfig) -> dict:
     if ec.checkpoint:
         resolve_checkpoint(ec.checkpoint)  # a wrong path is reported before torchrl loads
 
-    from truckrl.agent.categories import episode_bins, format_category_table, summarize_by_category
+    from truckrl.agent.categories import format_category_table, summarize_by_category, task_bins
     from truckrl.agent.rollout import summarize
-    from truckrl.sim.scene import ROUTE_KEYS
     from truckrl.sim.validation import ConfigError
 
     if ec.policy == "planner":
-        summary_head, results, (tol_pos, tol_deg), errors, output = _run_planner(ec)
+        summary_head, results, (tol_pos, tol_deg), errors, output, task = _run_planner(ec)
     else:
-        summary_head, results, (tol_pos, tol_deg), errors, output = _run_checkpoint(ec)
-    has_route = all(k in results for k in ROUTE_KEYS)
+        summary_head, results, (tol_pos, tol_deg), errors, output, task = _run_checkpoint(ec)
+    bins = task_bins(task, results)
     summary = {
+        "task": task,
         **summary_head,
         "tolerance_position_m": tol_pos,
         "tolerance_heading_deg": tol_deg,
         "seed": ec.seed,
         **summarize(results, errors),
-        "categories": summarize_by_category(results, episode_bins(results)) if has_route else [],
+        "categories": summarize_by_category(results, bins, errors) if bins else [],
     }
     print_table(summary, errors)
     print()
-    if has_route:
-        print("by scene category (bins [lo, hi); heading = tractor's):")
+    if bins:
+        print("by scene category (bins [lo, hi)):")
         print(format_category_table(summary["categories"]))
     else:
-        print("no per-category table: this task's scenes record no route")
+        print(f"no per-category table: task {task!r} declares no scene categories")
     print(json.dumps({**summary, "output": str(output)}))
     try:
         write_json(output, summary)
@@ -133,7 +133,8 @@ def evaluate(ec: EvaluateConfig) -> dict:
 
 
 def _run_checkpoint(ec: EvaluateConfig):
-    """The checkpoint's mean action on the scenes: ``(head, results, tolerance, errors, output)``."""
+    """The checkpoint's mean action on the scenes: ``(head, results, tolerance, errors, output,
+    task name)``."""
     from truckrl.agent.policy import load_policy
     from truckrl.agent.rollout import evaluate_policy
 
@@ -151,7 +152,7 @@ def _run_checkpoint(ec: EvaluateConfig):
         "frames": int(policy.counters["frames"]),
         "difficulty": difficulty,
     }
-    return head, results, tolerance, errors, output
+    return head, results, tolerance, errors, output, policy.env_config.task.name
 
 
 def planner_config():
@@ -163,7 +164,7 @@ def planner_config():
 
 
 def _run_planner(ec: EvaluateConfig):
-    """The planner on the scenes: ``(head, results, tolerance, errors, output)``."""
+    """The planner on the scenes: ``(head, results, tolerance, errors, output, task name)``."""
     import time
 
     from truckrl.agent.planner import plan_episodes
@@ -194,7 +195,7 @@ def _run_planner(ec: EvaluateConfig):
         "planner_seconds": time.perf_counter() - t0,
         "planner_rollouts": int(results["rollouts"]),
     }
-    return head, results, tolerance, errors, output
+    return head, results, tolerance, errors, output, env_cfg.task.name
 
 
 def print_table(s: dict, errors: tuple[Quantity, ...]) -> None:

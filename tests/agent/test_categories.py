@@ -296,7 +296,7 @@ def test_format_category_table():
     header = lines[0]
     for title in ("dimension", "bin", "n", "success %", "collision %", "jack-knife %"):
         assert title in header
-    for title in ("timeout %", "p95 pos m", "p95 heading deg"):
+    for title in ("timeout %", "p95 pos m", "p95 tractor heading deg", "p95 trailer heading deg"):
         assert title in header
     assert set(lines[1]) == {"-"}
     assert len({len(line) for line in lines}) == 1  # fixed width
@@ -312,9 +312,57 @@ def test_format_category_table():
         "0.0",
         "3.85",
         "28.5",
+        "1.0",
     ]
     # the dimension is named once per group
-    assert second == ["left", "12", "33.3", "66.7", "0.0", "0.0", "19.50", "5.0"]
+    assert second == ["left", "12", "33.3", "66.7", "0.0", "0.0", "19.50", "5.0", "1.9"]
     assert third[:4] == ["goal", "distance", "[m]", "25-40"]
-    assert third[-2:] == ["0.12", "0.0"]
+    assert third[-3:] == ["0.12", "0.0", "0.0"]
     assert format_category_table([]).splitlines()[-1] == "(no episodes)"
+
+
+def test_generic_bins_of_a_task_with_its_own_dimensions():
+    """A task's ``category_dims``: edges bin (scaled) values, names label integer codes; values
+    outside the edges get their own bin, every episode lands in one bin per dimension."""
+    from truckrl.agent.categories import generic_bins
+    from truckrl.task import CategoryDim
+
+    dims = (
+        CategoryDim("bay width [m]", "bay_width", edges=(3.0, 4.0, 5.0)),
+        CategoryDim(
+            "start heading [deg]", "start_heading", edges=(0.0, 45.0, 90.0), scale=180 / math.pi
+        ),
+        CategoryDim("neighbours", "occupied", names=("none", "one", "both")),
+    )
+    info = {
+        "bay_width": torch.tensor([3.0, 3.99, 4.0, 5.0, 5.5]),
+        "start_heading": torch.tensor([0.1, 0.9, 1.5, 0.0, 0.5]),
+        "occupied": torch.tensor([0, 2, 2, 1, 0]),
+    }
+    got = as_lists(generic_bins(info, dims))
+    assert got["bay width [m]"] == {
+        "3-4": [True, True, False, False, False],
+        "4-5": [False, False, True, True, False],
+        "> 5": [False, False, False, False, True],
+    }
+    # 0.1 rad = 5.7 deg, 0.9 rad = 51.6 deg, 1.5 rad = 85.9 deg, 0.5 rad = 28.6 deg
+    assert got["start heading [deg]"] == {
+        "0-45": [True, False, False, True, True],
+        "45-90": [False, True, True, False, False],
+    }
+    assert got["neighbours"] == {
+        "none": [True, False, False, False, True],
+        "one": [False, False, False, True, False],
+        "both": [False, True, True, False, False],
+    }
+    with pytest.raises(KeyError, match="bay_width"):
+        generic_bins({}, dims[:1])
+    with pytest.raises(ValueError, match="exactly one"):
+        CategoryDim("x", "x")
+
+
+def test_task_bins_picks_the_intersection_split_or_the_tasks_dimensions():
+    from truckrl.agent.categories import task_bins
+
+    assert set(task_bins("intersection", hand_info())) == set(episode_bins(hand_info()))
+    assert task_bins("tests.task.reach_task", {"trailer_length": torch.ones(3)}) is None

@@ -4,7 +4,9 @@ A policy can look fine on average and still fail one kind of task (right turns, 
 at a crossing). :func:`episode_bins` sorts episodes along several dimensions (route, turn angle,
 crossing angle, trailer length, road width, goal distance), :func:`summarize_by_category` gives
 the outcome rates and p95 final errors of every non-empty bin, and
-:func:`format_category_table` prints them. Pure torch: no TorchRL needed.
+:func:`format_category_table` prints them. Other tasks declare their dimensions
+(``Task.category_dims``, :func:`generic_bins`); :func:`task_bins` picks. Pure torch: no TorchRL
+needed.
 
 Bins (edges below, in the unit of their dimension) are ``[lo, hi)``, the last one ``[lo, hi]``.
 The outermost edges of a dimension are widened by :data:`EDGE_TOL` (float32 round-off at the ends
@@ -29,6 +31,7 @@ from truckrl.sim.scene import (
     ROUTE_STRAIGHT_ROAD,
     SceneBatch,
 )
+from truckrl.task import CategoryDim, Quantity, task_class
 
 #: |turn angle| [deg] bins of left and right turns at a crossing (each split by side). The default
 #: crossing angles (45-135 deg) give turns of 45-135 deg; 110-180 are the sharp turns.
@@ -162,8 +165,48 @@ def episode_bins(info: Mapping[str, Tensor]) -> dict[str, dict[str, Tensor]]:
     return bins
 
 
+def generic_bins(
+    info: Mapping[str, Tensor], dims: Sequence[CategoryDim]
+) -> dict[str, dict[str, Tensor]]:
+    """Named bins ``{dimension: {bin: bool Tensor [E]}}`` along a task's ``category_dims``.
+
+    A binned dimension gets the bins of its edges (plus ``"< lo"`` / ``"> hi"`` bins for values
+    outside, when there are any, as :func:`episode_bins`); a categorical one a bin per name.
+
+    Raises:
+        KeyError: ``info`` lacks a dimension's key.
+    """
+    missing = [d.key for d in dims if d.key not in info]
+    if missing:
+        raise KeyError(f"generic_bins: info lacks {', '.join(missing)}")
+    bins: dict[str, dict[str, Tensor]] = {}
+    for d in dims:
+        x = info[d.key]
+        if d.names is not None:
+            code = x.long()
+            bins[d.label] = {name: code == i for i, name in enumerate(d.names)}
+        else:
+            v = x.to(torch.float64) * d.scale
+            bins[d.label] = _range_bins(v, d.edges, torch.ones_like(v, dtype=torch.bool))
+    return bins
+
+
+def task_bins(task: str, info: Mapping[str, Tensor]) -> dict[str, dict[str, Tensor]] | None:
+    """The category bins of task ``task``'s episodes, or None where it declares none.
+
+    Episodes that record the intersection scene's route (:data:`INFO_KEYS`) get
+    :func:`episode_bins`; any other task its ``Task.category_dims`` (:func:`generic_bins`).
+    """
+    if all(k in info for k in INFO_KEYS):
+        return episode_bins(info)
+    dims = task_class(task).category_dims
+    return generic_bins(info, dims) if dims else None
+
+
 def summarize_by_category(
-    results: Mapping[str, Tensor], bins: Mapping[str, Mapping[str, Tensor]]
+    results: Mapping[str, Tensor],
+    bins: Mapping[str, Mapping[str, Tensor]],
+    errors: Sequence[Quantity] | None = None,
 ) -> list[dict]:
     """Outcome rates and p95 final errors of every bin with at least one episode.
 
@@ -172,14 +215,18 @@ def summarize_by_category(
             "truncated" (timeout); float "pos_error" [m], "tractor_heading_error" and
             "trailer_heading_error" [deg] at the episode's last step.
         bins: ``{dimension: {bin: bool [E]}}``, e.g. from :func:`episode_bins`.
+        errors: the task's error quantities (``results`` holds them in their shown units);
+            default the intersection task's three (:data:`ERRORS`).
 
     Returns:
         One dict per non-empty bin, in the order of ``bins``: "dimension", "bin", "count" (int),
         "success_rate", "collision_rate", "jackknife_rate", "timeout_rate" (fractions in [0, 1]),
         "pos_error_m_p95", "tractor_heading_error_deg_p95", "trailer_heading_error_deg_p95"
-        (linear-interpolated 95th percentile, as :func:`torch.quantile`).
+        (linear-interpolated 95th percentile, as :func:`torch.quantile`); with ``errors``,
+        ``"<key>_<shown unit>_p95"`` for each.
     """
-    missing = [k for k in (*OUTCOMES, *ERRORS) if k not in results]
+    units = ERRORS if errors is None else {q.key: q.shown_unit for q in errors}
+    missing = [k for k in (*OUTCOMES, *units) if k not in results]
     if missing:
         raise KeyError(f"summarize_by_category: results lack {', '.join(missing)}")
     n = results["success"].shape
@@ -199,32 +246,42 @@ def summarize_by_category(
             row: dict = {"dimension": dim, "bin": name, "count": count}
             for key, rate in OUTCOMES.items():
                 row[f"{rate}_rate"] = results[key][mask].to(torch.float64).mean().item()
-            for key, unit in ERRORS.items():
+            for key, unit in units.items():
                 v = results[key][mask].to(torch.float64)
                 row[f"{key}_{unit}_p95"] = torch.quantile(v, 0.95).item()
             rows.append(row)
     return rows
 
 
-#: Columns of :func:`format_category_table`: header, row key, width, format.
+#: Rate columns of :func:`format_category_table`: header, row key, width, format.
 _COLUMNS = (
     ("n", "count", 6, "d"),
     ("success %", "success_rate", 10, "pct"),
     ("collision %", "collision_rate", 12, "pct"),
     ("jack-knife %", "jackknife_rate", 13, "pct"),
     ("timeout %", "timeout_rate", 10, "pct"),
-    ("p95 pos m", "pos_error_m_p95", 10, ".2f"),
-    ("p95 heading deg", "tractor_heading_error_deg_p95", 16, ".1f"),
 )
 
 
+def _error_columns(rows: Sequence[Mapping]) -> list[tuple[str, str, int, str]]:
+    """One column per ``<key>_<unit>_p95`` entry of the rows: ``"p95 pos m"``, ..."""
+    cols = []
+    for key in rows[0] if rows else ():
+        if key.endswith("_p95"):
+            name, _, unit = key[: -len("_p95")].rpartition("_")
+            title = f"p95 {name.removesuffix('_error').replace('_', ' ')} {unit}"
+            cols.append((title, key, len(title) + 2, ".2f" if unit == "m" else ".1f"))
+    return cols
+
+
 def format_category_table(rows: Sequence[Mapping]) -> str:
-    """Fixed-width text table of :func:`summarize_by_category` rows (rates in %, the dimension
-    named on the first row of its group; heading = the tractor's)."""
+    """Fixed-width text table of :func:`summarize_by_category` rows (rates in %, then the p95
+    of every error; the dimension named on the first row of its group)."""
+    columns = (*_COLUMNS, *_error_columns(rows))
     w_dim = max([len("dimension"), *(len(str(r["dimension"])) for r in rows)])
     w_bin = max([len("bin"), *(len(str(r["bin"])) for r in rows)])
     header = f"{'dimension':<{w_dim}}  {'bin':<{w_bin}}" + "".join(
-        f"{title:>{width}}" for title, _, width, _ in _COLUMNS
+        f"{title:>{width}}" for title, _, width, _ in columns
     )
     lines = [header, "-" * len(header)]
     previous = None
@@ -232,7 +289,7 @@ def format_category_table(rows: Sequence[Mapping]) -> str:
         dim = str(r["dimension"])
         line = f"{dim if dim != previous else '':<{w_dim}}  {r['bin']!s:<{w_bin}}"
         previous = dim
-        for _, key, width, fmt in _COLUMNS:
+        for _, key, width, fmt in columns:
             v = r[key]
             line += f"{100.0 * v:>{width}.1f}" if fmt == "pct" else f"{v:>{width}{fmt}}"
         lines.append(line)

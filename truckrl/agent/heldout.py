@@ -13,9 +13,8 @@ from __future__ import annotations
 
 import re
 
-from truckrl.agent.categories import episode_bins, summarize_by_category
+from truckrl.agent.categories import summarize_by_category, task_bins
 from truckrl.agent.rollout import Policy, evaluate_policy, summarize
-from truckrl.sim.scene import ROUTE_KEYS
 from truckrl.task import OUTCOMES, EnvConfig
 
 #: Scene seed of the held-out set (6,949,403,065). Training envs are seeded with
@@ -66,15 +65,16 @@ def heldout_scalars(
 
     Returns:
         ``eval/difficulty``, ``eval/<outcome>_rate`` (success, collision, jackknife, timeout) and,
-        for tasks whose scenes record a route, ``eval/<dimension>/<bin>/success`` (success rate
+        for tasks with scene categories, ``eval/<dimension>/<bin>/success`` (success rate
         of every non-empty bin; names as :func:`tag`), all fractions in [0, 1].
     """
     results, _, errors = evaluate_policy(actor, env_cfg, difficulty, episodes, seed, device)
     summary = summarize(results, errors)
     out = {f"{PREFIX}/difficulty": float(difficulty)}
     out |= {f"{PREFIX}/{o.name}_rate": summary[f"{o.name}_rate"] for o in OUTCOMES}
-    if all(k in results for k in ROUTE_KEYS):
-        for row in summarize_by_category(results, episode_bins(results)):
+    bins = task_bins(env_cfg.task.name, results)
+    if bins:
+        for row in summarize_by_category(results, bins, errors):
             key = f"{PREFIX}/{tag(row['dimension'])}/{tag(row['bin'])}/success"
             out[key] = row["success_rate"]
     return out

@@ -14,7 +14,6 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from truckrl.agent.categories import trailer_length
 from truckrl.env import TruckEnv
-from truckrl.sim.scene import ROUTE_KEYS
 from truckrl.task import OUTCOMES, EnvConfig, Quantity, shown
 
 #: What :func:`evaluate_policy` runs: a TorchRL actor, or any ``td -> td`` that sets "action".
@@ -50,11 +49,11 @@ def evaluate_policy(
         ``errors`` at the episode's last step, in its shown unit (m or deg). It also holds each
         episode's scene, read from the env's state at reset, so that row ``i`` of every entry
         is the same episode: "trailer_length" [m] (front overhang + wheelbase + rear overhang)
-        and, for tasks whose scenes record a route (``state["route"]``; the intersection task
-        does), the :data:`~truckrl.sim.scene.ROUTE_KEYS`: "route" (long, ``ROUTE_*``),
-        "turn_angle" and "crossing_angle" [rad], "start_road_width", "goal_road_width" and
-        "goal_distance" [m]. ``results`` is thus a valid input of
-        :func:`truckrl.agent.categories.episode_bins`.
+        and every scene metadata entry the task records (``state["route"]``): for the
+        intersection task the :data:`~truckrl.sim.scene.ROUTE_KEYS`, "route" (long,
+        ``ROUTE_*``), "turn_angle" and "crossing_angle" [rad], "start_road_width",
+        "goal_road_width" and "goal_distance" [m]. ``results`` is thus a valid input of
+        :func:`truckrl.agent.categories.task_bins`.
     """
     # eager: a one-off batch does not repay ~20 s of torch.compile
     env_cfg = dataclasses.replace(env_cfg, compile=False)
@@ -71,7 +70,7 @@ def evaluate_policy(
     start = env.get_state()
     scene = {"trailer_length": trailer_length(start["params"])}
     if "route" in start.keys():
-        scene |= {k: start["route", k] for k in ROUTE_KEYS}
+        scene |= {k: start["route", k] for k in start["route"].keys()}
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(env_cfg.max_steps):
             nxt = env.step(actor(td))["next"]

@@ -7,7 +7,15 @@ See :mod:`truckrl.task.base` for the state layout and the functional core, and
 from truckrl.task.base import NUM_FEATURES, Task, sensor_origin
 from truckrl.task.config import MAX_DIFFICULTY, SENSOR_SCALE, EnvConfig, TaskConfig, ToleranceConfig
 from truckrl.task.registry import task_class, task_names
-from truckrl.task.schema import FLAG_KEYS, OUTCOMES, Outcome, Quantity, shown, shown_float
+from truckrl.task.schema import (
+    FLAG_KEYS,
+    OUTCOMES,
+    CategoryDim,
+    Outcome,
+    Quantity,
+    shown,
+    shown_float,
+)
 
 
 def make_task(cfg: EnvConfig) -> Task:
@@ -16,6 +24,7 @@ def make_task(cfg: EnvConfig) -> Task:
 
 
 __all__ = [
+    "CategoryDim",
     "FLAG_KEYS",
     "MAX_DIFFICULTY",
     "NUM_FEATURES",

@@ -45,7 +45,7 @@ from truckrl.sim.vehicle import (
     sample_vehicle_params,
 )
 from truckrl.task.config import SENSOR_SCALE, EnvConfig, TaskConfig
-from truckrl.task.schema import Quantity
+from truckrl.task.schema import CategoryDim, Quantity
 
 if TYPE_CHECKING:  # imported where a state is built: config-only imports stay light
     from tensordict import TensorDict
@@ -92,6 +92,9 @@ class Task:
         error_quantities: the errors to the goal it reports, in state and outputs.
         reward_keys: names of its reward terms, in summation order.
         reverse: whether its trucks may reverse (default False: forward only, the paper's).
+        category_dims: how evaluation splits its episodes by scene (:class:`CategoryDim` over
+            the metadata its scenes record in ``state["route"]``); the intersection task's
+            richer split lives in :func:`truckrl.agent.categories.episode_bins`.
     """
 
     name: ClassVar[str]
@@ -99,6 +102,7 @@ class Task:
     error_quantities: ClassVar[tuple[Quantity, ...]]
     reward_keys: ClassVar[tuple[str, ...]]
     reverse: ClassVar[bool] = False
+    category_dims: ClassVar[tuple[CategoryDim, ...]] = ()
 
     def __init__(self, cfg: EnvConfig) -> None:
         if not isinstance(cfg.task, self.config_class):

@@ -62,6 +62,39 @@ class Quantity:
         return "deg" if self.unit == "rad" else self.unit
 
 
+@dataclass(frozen=True)
+class CategoryDim:
+    """One dimension along which evaluation splits a task's episodes (``Task.category_dims``).
+
+    The value of each episode is ``info[key] * scale``, with ``info`` the scene metadata the task
+    records at reset (``state["route"]``, plus ``trailer_length`` [m] for every task). Either
+    ``edges`` (bins ``[lo, hi)``, the last one closed, in the scaled unit) or ``names`` (the
+    value is an integer code ``i`` named ``names[i]``) is given.
+
+    Attributes:
+        label: dimension name in tables and TensorBoard, unit in brackets (``"bay width [m]"``).
+        key: the metadata entry it reads.
+        edges: bin edges, increasing (at least two), or None for a categorical dimension.
+        names: names of the integer codes 0, 1, ..., or None for a binned dimension.
+        scale: factor applied before binning (e.g. ``180 / pi`` for an angle shown in degrees).
+    """
+
+    label: str
+    key: str
+    edges: tuple[float, ...] | None = None
+    names: tuple[str, ...] | None = None
+    scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if (self.edges is None) == (self.names is None):
+            raise ValueError(f"CategoryDim {self.label!r}: give exactly one of edges and names")
+        if self.edges is not None and (
+            len(self.edges) < 2
+            or any(b <= a for a, b in zip(self.edges[:-1], self.edges[1:], strict=True))
+        ):
+            raise ValueError(f"CategoryDim {self.label!r}: edges must increase, at least two")
+
+
 def shown(q: Quantity, value: Tensor) -> Tensor:
     """``value`` in ``q.shown_unit``: radians become degrees, everything else is unchanged."""
     return torch.rad2deg(value) if q.unit == "rad" else value
