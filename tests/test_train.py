@@ -97,6 +97,28 @@ def test_heldout_evaluation_is_logged(run_dir, tmp_path):
     assert not [t for t in defaults.Tags()["scalars"] if t.startswith("eval/")]
 
 
+def test_best_checkpoint_keeps_the_best_heldout_result_across_a_resume(tmp_path):
+    """best.pt is the checkpoint of the first held-out evaluation with the highest (difficulty,
+    success); a resumed run replaces it only with a strictly better one; last.pt has no record."""
+    evals = ["log.eval_interval_min=0.001", "log.eval_episodes=4", "env.max_steps=20"]
+    train(f"total_frames={3 * BATCH}", *evals, f"hydra.run.dir={tmp_path}")
+    train(f"resume={tmp_path}", f"total_frames={5 * BATCH}", *evals)
+    acc = EventAccumulator(str(tmp_path / "tb"))
+    acc.Reload()
+    seen = [(e.step, e.value) for e in acc.Scalars("eval/success_rate")]
+    assert [s for s, _ in seen] == [BATCH * i for i in range(1, 6)]
+    top = max(v for _, v in seen)
+    first_top = next(s for s, v in seen if v == top)
+    best = load_checkpoint(tmp_path / "checkpoints" / "best.pt")
+    assert best["heldout"]["success_rate"] == pytest.approx(top)
+    assert best["heldout"]["difficulty"] == 0.0
+    assert best["counters"]["frames"] == best["heldout"]["frames"] == first_top
+    assert "heldout" not in load_checkpoint(tmp_path)  # last.pt
+    off = tmp_path / "off"
+    train(f"total_frames={BATCH}", *evals, "checkpoint.keep_best=false", f"hydra.run.dir={off}")
+    assert not (off / "checkpoints" / "best.pt").exists()
+
+
 def test_resume_continues_counters_and_steps(run_dir):
     proc = train(f"resume={run_dir}", f"total_frames={6 * BATCH}")
     assert "resumed" in proc.stdout

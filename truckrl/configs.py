@@ -78,6 +78,11 @@ class CheckpointConfig:
     keep_every: int = param(
         0, lo=0, hi=1e9, unit="iterations", doc="also keep iter_XXXXXX.pt every N (0: never)"
     )
+    keep_best: bool = param(
+        True,
+        doc="after each held-out evaluation, keep best.pt: the best held-out success at the "
+        "highest difficulty evaluated so far",
+    )
 
 
 #: Top-level keys (:class:`TrainConfig` fields) a resumed run takes from the command line; all

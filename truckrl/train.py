@@ -8,7 +8,8 @@ Each iteration collects ``collector.workers x num_envs x steps_per_env`` frames,
 episodes to the curriculum in start order (:mod:`truckrl.agent.cohorts`; a promotion reaches
 every worker before the next collection), runs the PPO update and logs to ``<run_dir>/tb``.
 ``<run_dir>/checkpoints/last.pt`` is written every ``checkpoint.interval`` iterations and at the
-end. A run stops at ``stop_difficulty`` (default 6, the paper's goal), ``max_minutes`` (60),
+end; ``best.pt`` after each held-out evaluation that beats every earlier one (higher difficulty,
+or the same difficulty and a higher success rate; ``checkpoint.keep_best``). A run stops at ``stop_difficulty`` (default 6, the paper's goal), ``max_minutes`` (60),
 ``total_frames`` or a signal (at the next iteration boundary, with a checkpoint, exit 0;
 :mod:`truckrl.agent.session`); its last lines say why and what to run next.
 
@@ -114,24 +115,30 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
             write_parent(run_dir, parent)
     log.info(f"run dir: {run_dir}; batch {tc.collector.frames_per_batch:,} frames/iteration")
 
-    def save(final: bool = False) -> None:
+    def save(final: bool = False, best: dict | None = None) -> None:
+        """Write last.pt (and iter_XXXXXX.pt when due); with ``best``, only best.pt."""
         counters.wall_time_s = wall_at_start + time.monotonic() - session_start
         ckpt_dir = run_dir / ckpt.CHECKPOINT_DIR
-        paths = [ckpt_dir / ckpt.LAST_NAME]
+        paths = [ckpt_dir / (ckpt.BEST_NAME if best else ckpt.LAST_NAME)]
         keep = tc.checkpoint.keep_every
-        if keep and (counters.iteration % keep == 0 or final):
+        if keep and not best and (counters.iteration % keep == 0 or final):
             paths.append(ckpt_dir / f"iter_{counters.iteration:06d}.pt")
         for p in paths:
             try:
                 ckpt.save_training_state(p, model=ac.model, ppo=ppo, curriculum=curriculum,
                                          counters=asdict(counters), config_yaml=cfg_yaml,
-                                         num_obs=num_obs, num_beams=num_beams, source=source)  # fmt: skip
+                                         num_obs=num_obs, num_beams=num_beams, source=source,
+                                         heldout=best)  # fmt: skip
             except OSError as e:  # full disk, lost permission: stop; the last good one is intact
                 why = (
                     f"{e.strerror or e}; the last good checkpoint is intact: {stop.last_checkpoint}"
                 )
                 raise ckpt.CheckpointError(f"cannot write checkpoint {p} ({why})") from None
-        stop.last_checkpoint = str(paths[0])
+        if not best:
+            stop.last_checkpoint = str(paths[0])
+
+    # The best held-out result so far, (difficulty, success): a resumed run keeps its best.pt
+    best_so_far = ckpt.best_record(run_dir / ckpt.CHECKPOINT_DIR / ckpt.BEST_NAME)
 
     # Training loop
     tracker = EpisodeTracker(task.reward_keys, task.error_quantities)
@@ -191,6 +198,13 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
                     ac.actor, tc.env, curriculum.difficulty, tc.log.eval_episodes, tc.device
                 )
                 logger.scalars(evals, counters.frames)
+                record = (float(curriculum.difficulty), evals["eval/success_rate"])
+                if tc.checkpoint.keep_best and (best_so_far is None or record > best_so_far):
+                    best_so_far = record
+                    save(best={"difficulty": record[0], "success_rate": record[1],
+                               "frames": counters.frames})  # fmt: skip
+                    log.info(f"best.pt: held-out success {record[1]:.3f} at difficulty "
+                             f"{record[0]:g} ({counters.frames:,} frames)")  # fmt: skip
             if counters.iteration % tc.checkpoint.interval == 0:
                 save()
     except KeyboardInterrupt:  # raised by StopSignals while collecting (or with no handlers)

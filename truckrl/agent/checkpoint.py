@@ -42,6 +42,8 @@ import torch
 CHECKPOINT_VERSION = 2
 CHECKPOINT_DIR = "checkpoints"
 LAST_NAME = "last.pt"
+#: The checkpoint with the best held-out result (``checkpoint.keep_best``), beside last.pt.
+BEST_NAME = "best.pt"
 #: Prefix and suffix of the temporary files :func:`save_checkpoint` writes before renaming.
 TMP_SUFFIX = ".tmp"
 
@@ -252,8 +254,13 @@ def save_training_state(
     num_obs: int,
     num_beams: int,
     source: dict[str, Any] | None = None,
+    heldout: dict[str, float] | None = None,
 ) -> Path:
-    """Write a training checkpoint atomically (layout in the module doc)."""
+    """Write a training checkpoint atomically (layout in the module doc).
+
+    ``heldout``: the held-out evaluation this checkpoint was kept for (best.pt), stored as
+    ``state["heldout"]`` (``difficulty``, ``success_rate``, ``frames``); omitted otherwise.
+    """
     state = {
         "version": CHECKPOINT_VERSION,
         "model": model.state_dict(),
@@ -266,7 +273,23 @@ def save_training_state(
         "config": config_yaml,
         "source": dict(source or {}),
     }
+    if heldout is not None:
+        state["heldout"] = dict(heldout)
     return save_checkpoint(path, state)
+
+
+def best_record(path: str | os.PathLike) -> tuple[float, float] | None:
+    """``(difficulty, success rate)`` of the held-out evaluation that a best.pt was kept for,
+    or None where there is no such file or it holds no record (an unreadable file: None too,
+    so a run carries on and replaces it)."""
+    p = Path(path)
+    if not p.is_file():
+        return None
+    try:
+        h = load_checkpoint(p, "cpu").get("heldout")
+        return (float(h["difficulty"]), float(h["success_rate"])) if h else None
+    except (CheckpointError, KeyError, TypeError, ValueError):
+        return None
 
 
 def load_training_state(
