@@ -18,14 +18,17 @@ def test_defaults_compose_to_the_dataclass_defaults():
     assert ec == EvaluateConfig(checkpoint="x")
 
 
-def test_demos_experiment_is_fast_plus_its_three_values():
-    fast = to_config(TrainConfig, compose_config("train"))
+def test_demos_experiment_is_the_default_and_fast_plus_its_values():
+    fast = to_config(TrainConfig, compose_config("train", "experiment=fast"))
     demos = to_config(TrainConfig, compose_config("train", "experiment=demos"))
+    assert to_config(TrainConfig, compose_config("train")) == demos
     assert (demos.ppo.gamma, demos.env.task.reward.time, demos.curriculum.max_difficulty) == (
         0.998,
         -0.005,
         6.0,
     )
+    assert (demos.demos.episodes, fast.demos.episodes) == (600, 0)
+    assert (demos.stop_difficulty, fast.stop_difficulty) == (None, 6.0)
     for part in ("collector", "model", "log", "checkpoint"):
         assert getattr(demos, part) == getattr(fast, part), part
     assert demos.ppo.lr == fast.ppo.lr and demos.env.compile == fast.env.compile
@@ -83,9 +86,12 @@ def test_config_table_cli():
 
 
 def test_default_run_ends_on_its_own():
-    """`python -m truckrl.train` stops at the paper's goal (difficulty 6) or after 60 minutes."""
+    """`python -m truckrl.train` trains for 60 minutes, its curriculum capped at the paper's goal
+    (difficulty 6); the dataclass default (experiment=paper) stops at difficulty 6."""
     tc = to_config(TrainConfig, compose_config("train"))
-    assert (tc.stop_difficulty, tc.max_minutes, tc.total_frames) == (6.0, 60.0, None)
+    assert (tc.stop_difficulty, tc.max_minutes, tc.total_frames) == (None, 60.0, None)
+    assert tc.curriculum.max_difficulty == 6.0
+    assert TrainConfig().stop_difficulty == 6.0
     assert not tc.overwrite and tc.resume is None
 
 

@@ -119,6 +119,31 @@ def test_best_checkpoint_keeps_the_best_heldout_result_across_a_resume(tmp_path)
     assert not (off / "checkpoints" / "best.pt").exists()
 
 
+def test_demonstrations_start_the_run_and_a_resume_does_not_plan_again(tmp_path):
+    """``demos.episodes=N``: the run plans N scenes, clones the solutions (demos.json says how
+    it went), then trains; resuming it never plans again."""
+    demos = ["demos.episodes=3", "demos.difficulty=0", "demos.samples=32", "demos.iterations=2",
+             "demos.compile=false", "demos.epochs=3", "demos.seed=12345", "env.max_steps=40"]  # fmt: skip
+    proc = train(f"total_frames={BATCH}", *demos, f"hydra.run.dir={tmp_path}")
+    assert "demonstrations: planning 3 scenes (seed 12345) at difficulty 0" in proc.stdout
+    info = json.loads((tmp_path / "demos.json").read_text())
+    assert info["scenes"] == 3 and 1 <= info["plans_kept"] <= 3 and info["samples"] > 0
+    assert len(info["losses"]) == 3 and info["losses"][-1] < info["losses"][0]
+    std = load_checkpoint(tmp_path)["model"]
+    log_std = next(v for k, v in std.items() if k.endswith("log_std"))
+    assert torch.allclose(log_std.exp(), torch.tensor(0.3), atol=0.05)  # set, then one update
+    proc = train(f"resume={tmp_path}", f"total_frames={2 * BATCH}", *demos)
+    assert "demonstrations:" not in proc.stdout
+
+
+def test_demonstrations_that_solve_nothing_are_one_line(tmp_path):
+    demos = ["demos.episodes=2", "demos.difficulty=30", "demos.samples=4", "demos.iterations=1",
+             "demos.compile=false", "env.max_steps=5"]  # fmt: skip
+    proc = train(f"total_frames={BATCH}", *demos, f"hydra.run.dir={tmp_path}", check=False)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith("error: demos: the planner solved none")
+
+
 def test_resume_continues_counters_and_steps(run_dir):
     proc = train(f"resume={run_dir}", f"total_frames={6 * BATCH}")
     assert "resumed" in proc.stdout
@@ -215,7 +240,7 @@ def test_paper_preset_has_the_paper_numbers():
     assert not tc.env.compile
 
 
-def test_fast_experiment_is_the_default():
+def test_default_experiment_runs_fast_settings():
     tc = to_config(TrainConfig, compose_config("train"))
     assert tc.collector.frames_per_batch == 1024 * 64 and tc.env.compile
     assert (tc.ppo.num_epochs, tc.ppo.num_minibatches, tc.ppo.lr) == (5, 16, 3e-4)

@@ -100,11 +100,41 @@ RESUME_OVERRIDES = (
 
 
 @dataclass
+class DemosConfig:
+    """A start cloned from planner demonstrations, made by the run itself before PPO
+    (``truckrl/agent/imitation.py``; README, "Learning quality"). Skipped on resume."""
+
+    episodes: int = param(
+        0, lo=0, hi=1_000_000, unit="scenes", doc="scenes the planner solves first (0: no demos)"
+    )
+    seed: int = param(
+        99991, lo=0, hi=SEED_MAX, doc="their scene seed: one no evaluation uses (not 12345)"
+    )
+    difficulty: float = param(
+        4.0, lo=0.0, hi=MAX_DIFFICULTY, doc="tolerance level the demonstrations must meet"
+    )
+    epochs: int = param(30, lo=1, hi=100_000, doc="behaviour-cloning passes over the samples")
+    lr: float = param(2e-3, lo=0.0, hi=1.0, lo_open=True, doc="behaviour-cloning Adam step")
+    batch_size: int = param(4096, lo=1, hi=10_000_000, unit="samples", doc="per minibatch")
+    std: float = param(
+        0.3, lo=0.0, hi=10.0, lo_open=True, unit="action", doc="policy std set after cloning"
+    )
+    samples: int | None = param(
+        None, lo=2, hi=1_000_000, doc="planner candidates per scene per iteration (null: its own)"
+    )
+    iterations: int | None = param(
+        None, lo=1, hi=100_000, doc="planner CEM iterations per attempt (null: its own)"
+    )
+    compile: bool = param(True, doc="torch.compile the planner's rollouts (~15 s once)")
+
+
+@dataclass
 class TrainConfig:
     """``python -m truckrl.train``: everything a training run reads.
 
-    By default a run ends on its own: at the paper's goal (``stop_difficulty`` 6: 0.47 m and
-    0.94 deg) or after ``max_minutes`` 60, whichever comes first.
+    These field defaults (``experiment=paper``) end a run at the paper's goal (``stop_difficulty``
+    6: 0.47 m and 0.94 deg) or after ``max_minutes`` 60, whichever comes first. The default
+    experiment (``demos``) caps the curriculum at 6 instead and trains for the 60 minutes.
     """
 
     seed: int = param(0, lo=0, hi=SEED_MAX, doc="torch/numpy/python seed; env seeds derive from it")
@@ -133,6 +163,7 @@ class TrainConfig:
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
     log: LogConfig = field(default_factory=LogConfig)
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+    demos: DemosConfig = field(default_factory=DemosConfig)
 
     def __post_init__(self) -> None:
         validate(self)

@@ -6,13 +6,14 @@
 
 Rebuilds the scenes of a ``python -m truckrl.plan`` JSON (its ``episodes``, ``seed`` and env
 config), replays its successful action sequences, fits the training config's actor to them
-(:mod:`truckrl.agent.imitation`) and writes ``<out>/checkpoints/last.pt``: a training checkpoint
-at iteration 0 (the curriculum at its start, a fresh optimizer) with the train config composed
-from ``OVERRIDE``s like ``python -m truckrl.train`` would, so that ``train resume=<out>``
-continues it as a run of its own. The plan must have been made with the same env config as the
-training (apart from ``compile``). Use a seed that no evaluation uses: the held-out seeds are
-``evaluate``'s 12345 and training's own (``truckrl/agent/heldout.py``). Bad options print one
-line and exit with code 2.
+(:mod:`truckrl.agent.imitation`) and writes ``<out>/checkpoints/last.pt``: a training checkpoint at
+iteration 0 (the curriculum at its start, a fresh optimizer) with the train config composed from
+``OVERRIDE``s like ``python -m truckrl.train`` would, so that ``train resume=<out>`` continues it
+as a run of its own. ``python -m truckrl.train demos.episodes=N`` (the default experiment) does
+all of this inside the run. The plan must have been made with the same env config as the training
+(apart from ``compile`` and the reward weights). Use a seed that no evaluation uses: the held-out
+seeds are ``evaluate``'s 12345 and training's own (``truckrl/agent/heldout.py``). Bad options
+print one line and exit with code 2.
 """
 
 from __future__ import annotations
@@ -26,12 +27,15 @@ from datetime import datetime
 from pathlib import Path
 from typing import NoReturn
 
+from truckrl.configs import DemosConfig
+
+_DEMOS = DemosConfig()  # the defaults that `train demos.episodes=N` clones with too
 #: Options: (default, low, high, help).
 NUMERIC = {
-    "epochs": (30, 1, 100_000, "passes over the demonstration samples"),
-    "lr": (2e-3, 1e-7, 1.0, "Adam learning rate"),
-    "batch_size": (4096, 1, 10_000_000, "samples per minibatch"),
-    "std": (0.3, 1e-3, 10.0, "policy std set after cloning [action units]"),
+    "epochs": (_DEMOS.epochs, 1, 100_000, "passes over the demonstration samples"),
+    "lr": (_DEMOS.lr, 1e-7, 1.0, "Adam learning rate"),
+    "batch_size": (_DEMOS.batch_size, 1, 10_000_000, "samples per minibatch"),
+    "std": (_DEMOS.std, 1e-3, 10.0, "policy std set after cloning [action units]"),
     "threads": (2, 1, 1024, "torch CPU threads"),
 }
 
@@ -87,8 +91,12 @@ def run(args: argparse.Namespace) -> Path:
     from truckrl.configs import TrainConfig
 
     tc = compose_config("train", TrainConfig, args.overrides)
-    mine = json.loads(json.dumps({**dataclasses.asdict(tc.env), "compile": None}))  # as stored
+    # as stored; the reward weights do not change what a plan does (the planner has its own cost)
+    mine = json.loads(json.dumps({**dataclasses.asdict(tc.env), "compile": None}))
     theirs = {**meta["env"], "compile": None}
+    for cfg in (mine, theirs):
+        if isinstance(cfg.get("task"), dict):
+            cfg["task"] = {k: v for k, v in cfg["task"].items() if k != "reward"}
     if mine != theirs:
         diff = sorted(k for k in mine if mine[k] != theirs.get(k))
         raise ConfigError(

@@ -64,6 +64,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     cfg_yaml = yaml.safe_dump(asdict(tc), sort_keys=False)
     source = git_revision()  # once: checkpoints record the commit the session started from
     counters = Counters(**state["counters"]) if state else Counters()
+    session_start, wall_at_start = time.monotonic(), counters.wall_time_s  # demos count too
     seed_everything(tc.seed)
     stop = stop or StopSignals()
 
@@ -77,6 +78,9 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     # Create models, PPO (GAE, ClipPPOLoss, Adam, KL schedule) and curriculum
     ac = make_actor_critic(tc.model, num_obs, num_beams, env.action_spec.shape[-1])
     ac.model.to(tc.device)
+    demos = None
+    if not state and tc.demos.episodes > 0:  # a start cloned from planner demonstrations
+        demos = clone_demonstrations(ac, tc, env)
     ppo = PPO(ac, tc.ppo)
     curriculum = Curriculum(tc.curriculum)
     if state:
@@ -111,6 +115,8 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     if not continued:
         logger.config(cfg_yaml, asdict(tc), hparam_metrics(0.0, 0.0))
         (run_dir / "source.json").write_text(json.dumps(source) + "\n")
+        if demos:
+            (run_dir / "demos.json").write_text(json.dumps(demos, indent=2) + "\n")
         if parent:
             write_parent(run_dir, parent)
     log.info(f"run dir: {run_dir}; batch {tc.collector.frames_per_batch:,} frames/iteration")
@@ -143,7 +149,6 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     # Training loop
     tracker = EpisodeTracker(task.reward_keys, task.error_quantities)
     feed = StartOrderFeed()  # curriculum evidence unbiased by the synchronous (re)start
-    session_start, wall_at_start = time.monotonic(), counters.wall_time_s
     video_ok = tc.log.video_interval > 0
     progress = Progress(tc.total_frames, tc.max_minutes, tc.stop_difficulty, tc.log.progress_bar)
     batches = iter(collector)
@@ -228,6 +233,33 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
         log.info(line)
     stop.hand_over()  # under submitit: requeue the job (it resumes by itself)
     return counters
+
+
+def clone_demonstrations(ac: Any, tc: Any, env: Any) -> dict:
+    """``demos.episodes`` planner solutions cloned into ``ac`` (:func:`imitation.bootstrap`);
+    returns its summary. A planner that solves nothing is a one-line :class:`ConfigError`."""
+    from truckrl.agent.imitation import bootstrap
+    from truckrl.sim.validation import ConfigError
+
+    dc = tc.demos
+    log.info(f"demonstrations: planning {dc.episodes} scenes (seed {dc.seed}) at difficulty "
+             f"{dc.difficulty:g}, then behaviour cloning")  # fmt: skip
+    last = [time.monotonic()]
+
+    def progress(done: int, total: int) -> None:
+        if time.monotonic() - last[0] > 30.0 or done == total:
+            last[0] = time.monotonic()
+            log.info(f"  planner: {done}/{total} scenes")
+
+    try:
+        demos = bootstrap(ac, tc.env, dc, tc.device, tc.seed, progress)
+    except ValueError as e:
+        env.close()  # the workers, before the one-line error
+        raise ConfigError(f"demos: {e}") from None
+    log.info(f"demonstrations: {demos['plans_kept']} of {dc.episodes} scenes solved, "
+             f"{demos['samples']:,} samples, action MSE {demos['losses'][0]:.4f} -> "
+             f"{demos['losses'][-1]:.4f}, {demos['seconds'] / 60:.1f} min")  # fmt: skip
+    return demos
 
 
 def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:

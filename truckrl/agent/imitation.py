@@ -16,7 +16,8 @@ start:
   log-std is then set by the caller).
 
 ``python -m truckrl.imitate`` wraps both and writes a training checkpoint that
-``python -m truckrl.train resume=<dir>`` continues.
+``python -m truckrl.train resume=<dir>`` continues; :func:`bootstrap` does the whole chain (plan,
+replay, clone) inside ``python -m truckrl.train demos.episodes=N``.
 """
 
 from __future__ import annotations
@@ -140,3 +141,66 @@ def plan_demos(plan: dict[str, Any]) -> tuple[list[int], list[list[list[float]]]
     """Scene indices and action sequences of the successful episodes of a ``plan.json``."""
     episodes = [e for e in plan["per_episode"] if e["success"]]
     return [int(e["scene_index"]) for e in episodes], [e["actions"] for e in episodes]
+
+
+def bootstrap(
+    ac: ActorCritic,
+    env_cfg: EnvConfig,
+    dc: Any,
+    device: torch.device | str = "cpu",
+    seed: int = 0,
+    progress: Any = None,
+) -> dict[str, Any]:
+    """Plan ``dc.episodes`` scenes of seed ``dc.seed``, clone the successful plans into ``ac``'s
+    actor and set its std: a training run's start (``train demos.episodes=N``).
+
+    Args:
+        ac: the fresh actor-critic (changed in place: trunk and mean head, log-std).
+        env_cfg: the training's env config (the plans use it).
+        dc: :class:`~truckrl.configs.DemosConfig`.
+        seed: behaviour-cloning shuffle seed.
+        progress: ``progress(done, total)`` after every planner iteration, or None.
+
+    Returns:
+        A JSON-ready summary: scenes, planner success rate, plans kept, samples, losses, seconds.
+
+    Raises:
+        ValueError: no plan succeeded (nothing to clone).
+    """
+    import time
+
+    from truckrl.agent.planner import PlannerConfig, held_out_states, plan_states
+
+    t0 = time.perf_counter()
+    overrides = {"compile": dc.compile}
+    overrides |= {k: getattr(dc, k) for k in ("samples", "iterations") if getattr(dc, k)}
+    states = held_out_states(env_cfg, dc.episodes, dc.seed, device)
+    results, _, _ = plan_states(
+        env_cfg, states, dc.difficulty, PlannerConfig(**overrides), device, progress
+    )
+    t_plan = time.perf_counter() - t0
+    ok = results["success"].nonzero().squeeze(-1)
+    if ok.numel() == 0:
+        raise ValueError(
+            f"the planner solved none of {dc.episodes} scenes at difficulty {dc.difficulty:g}: "
+            "nothing to clone (lower demos.difficulty or raise demos.episodes)"
+        )
+    lengths = results["length"].long()
+    actions = [results["actions"][j, : int(lengths[j])].tolist() for j in ok.tolist()]
+    samples, kept = demonstrations(
+        env_cfg, states[ok.to(states.device)].cpu(), actions, dc.difficulty
+    )
+    losses = behaviour_clone(ac, samples.to(device), dc.epochs, dc.lr, dc.batch_size, seed=seed)
+    set_action_std(ac, dc.std)
+    return {
+        "scenes": dc.episodes,
+        "seed": dc.seed,
+        "difficulty": dc.difficulty,
+        "planner_success_rate": results["success"].float().mean().item(),
+        "plans_kept": kept,
+        "samples": int(samples.batch_size[0]),
+        "epochs": dc.epochs,
+        "losses": losses,
+        "plan_seconds": t_plan,
+        "seconds": time.perf_counter() - t0,
+    }
