@@ -408,25 +408,28 @@ def field_spec(dotted: str, root: type | None = None) -> tuple[Any, Any]:
     parts = re.sub(r"\[\d+\]", "", dotted).split(".")
     candidates: list[type] = [root or _root()]
     for i, part in enumerate(parts):
-        found = None
+        # every candidate class with this field: tasks share names (env.task.scene) but not
+        # their fields, so the search follows all of them
+        found = []
         for cls in candidates:
             if not dataclasses.is_dataclass(cls):
                 continue
             hints = typing.get_type_hints(cls)
-            for f in dataclasses.fields(cls):
-                if f.name == part:
-                    found = (hints[f.name], f.metadata.get("spec"))
-                    break
-            if found:
-                break
-        if found is None:
+            found += [
+                (hints[f.name], f.metadata.get("spec"))
+                for f in dataclasses.fields(cls)
+                if f.name == part
+            ]
+        if not found:
             return None, None
-        hint = found[0]
         if i == len(parts) - 1:
-            return found
-        candidates = [hint]
-        if hint is Any or isinstance(hint, type) and issubclass(hint, TaskConfig):  # env.task
-            candidates = [task_class(n).config_class for n in task_names()]
+            return found[0]
+        candidates = []
+        for hint, _ in found:
+            if hint is Any or isinstance(hint, type) and issubclass(hint, TaskConfig):  # env.task
+                candidates += [task_class(n).config_class for n in task_names()]
+            else:
+                candidates.append(hint)
     return None, None
 
 

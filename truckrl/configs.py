@@ -281,11 +281,23 @@ def structured(cls: type) -> Any:
         keys = n.keys() if isinstance(n, DictConfig) else range(len(n))
         for k in keys:
             child = n._get_node(k)
+            if isinstance(child, DictConfig) and _is_task_config(OmegaConf.get_type(child)):
+                # env.task holds whichever task config the ``task`` group picks (train and play
+                # list one in their defaults): the default's type, IntersectionConfig, and its
+                # fields would refuse or pollute another task's node
+                n[k] = OmegaConf.create({})
+                child = n._get_node(k)
             if isinstance(child, DictConfig | ListConfig):
                 writable(child)
 
     writable(node)
     return node
+
+
+def _is_task_config(t: Any) -> bool:
+    from truckrl.task import TaskConfig
+
+    return isinstance(t, type) and issubclass(t, TaskConfig)
 
 
 def register() -> None:

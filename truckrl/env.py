@@ -73,7 +73,7 @@ from torchrl.envs import EnvBase
 
 from truckrl.sim.control import CONTROL_KEYS
 from truckrl.sim.validation import ConfigError, build, check_range
-from truckrl.sim.vehicle import PARAM_KEYS
+from truckrl.sim.vehicle import PARAM_KEYS, REVERSE_KEYS
 from truckrl.task import FLAG_KEYS, MAX_DIFFICULTY, EnvConfig, make_task
 
 
@@ -111,6 +111,7 @@ class TruckEnv(EnvBase):
         )
         self._state_keys = ("pose", "goal", "segments", "mask", "step_count", *CONTROL_KEYS)
         self._state_keys += (*self.task.error_keys, *self.task.extra_state_keys)
+        self._param_keys = (*PARAM_KEYS, *(REVERSE_KEYS if self.task.reverse else ()))
         self._make_specs()
         compile_fn = (
             (lambda f: torch.compile(f, dynamic=False)) if self.config.compile else (lambda f: f)
@@ -219,11 +220,14 @@ class TruckEnv(EnvBase):
         """The state (rows ``index``, default all) as plain tensors, ``params`` as a dict."""
         s = self._state if index is None else self._state[index]
         flat = {k: s[k] for k in self._state_keys}
-        flat["params"] = {k: s["params", k] for k in PARAM_KEYS}
+        flat["params"] = {k: s["params", k] for k in self._param_keys}
         return flat
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         """Reset all trucks, or only those flagged by ``tensordict["_reset"]`` (``[N, 1]`` bool).
+
+        Freshly drawn episodes pass through :meth:`Task.on_reset` with their difficulty (a
+        task's start curriculum); a state given to :meth:`set_state` starts as it is.
 
         On a partial reset only the reset rows of the returned tensordict are meaningful: TorchRL
         merges them with ``where(_reset, new, old)``, so the other rows are left at zero and the
@@ -235,7 +239,7 @@ class TruckEnv(EnvBase):
             if self._restore is not None:
                 self._state, self._restore = self._restore, None
             else:
-                self._state = self._new_episodes(n)
+                self._state = self.task.on_reset(self._new_episodes(n), self._difficulty)
             out = TensorDict(
                 self._observe_fn(self._flat_state(), self._difficulty),
                 batch_size=[n],
@@ -245,7 +249,8 @@ class TruckEnv(EnvBase):
             idx = reset.reshape(n).nonzero().squeeze(-1)  # one sync per reset call
             out = self.observation_spec.zero()
             if idx.numel():
-                self._state[idx] = self._new_episodes(idx.numel())
+                fresh = self._new_episodes(idx.numel())
+                self._state[idx] = self.task.on_reset(fresh, self._difficulty[idx])
                 part = self.task.observe(self._flat_state(idx), self._difficulty[idx])
                 for k, v in part.items():
                     out[k][idx] = v

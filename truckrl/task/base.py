@@ -125,6 +125,9 @@ class Task:
         return NUM_FEATURES + self.num_extras
 
     num_extras: ClassVar[int] = 0
+    #: State entries beyond the errors that :meth:`success` reads (e.g. ``"speed"`` for a goal
+    #: that must be reached at rest); :meth:`outcome` passes them in ``err`` beside the errors.
+    success_state_keys: ClassVar[tuple[str, ...]] = ()
     #: State entries of this task beyond the shared ones (module doc), constant per episode,
     #: that :meth:`transition` reads (e.g. a reference route). :meth:`complete_state` fills them
     #: in a state built by hand.
@@ -155,6 +158,17 @@ class Task:
         """
         return state
 
+    def on_reset(self, state: TensorDict, difficulty: Tensor) -> TensorDict:
+        """Fresh episodes ``state [m]`` as they start under ``difficulty [m]`` (their curriculum
+        difficulty at reset); the default returns them unchanged.
+
+        :class:`~truckrl.env.TruckEnv` calls it on every episode it draws at a reset (not on a
+        state given to ``set_state``). A task with a start curriculum moves the start here; it
+        must keep the state complete (errors recomputed) and must draw no random numbers (the
+        episodes' draws come from :meth:`sample`), so a seed still fixes every episode.
+        """
+        return state
+
     def errors(self, s: Mapping[str, Any]) -> dict[str, Tensor]:
         """Errors to the goal ``{key: [N]}`` for :attr:`error_quantities`.
 
@@ -165,7 +179,9 @@ class Task:
         raise NotImplementedError
 
     def success(self, err: dict[str, Tensor], tol_pos: Tensor, tol_ang: Tensor) -> Tensor:
-        """``[N]`` bool: the goal is reached within the tolerances (before failures count)."""
+        """``[N]`` bool: the goal is reached within the tolerances (before failures count).
+
+        ``err`` holds the errors and the :attr:`success_state_keys` entries of the state."""
         raise NotImplementedError
 
     def reward_terms(
@@ -211,7 +227,7 @@ class Task:
         params = s["params"]
         collision = truck_collides(s["pose"], params, s["segments"], s["mask"])
         jack = jackknifed(s["pose"], params)
-        err = {k: s[k] for k in self.error_keys}
+        err = {k: s[k] for k in (*self.error_keys, *self.success_state_keys)}
         tol_pos, tol_ang = self.tolerances(difficulty)
         failed = collision | jack
         success = self.success(err, tol_pos, tol_ang) & ~failed
