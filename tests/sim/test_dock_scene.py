@@ -72,20 +72,29 @@ def rect(cx, cy, h, front, rear, half):
     u = np.stack((np.cos(h), np.sin(h)), -1)
     v = np.stack((-np.sin(h), np.cos(h)), -1)
     c = np.stack((cx, cy), -1)
-    out = [c + a[:, None] * u + b[:, None] * v for a, b in
-           ((front, half), (front, -half), (-rear, -half), (-rear, half))]
+    out = [
+        c + a[:, None] * u + b[:, None] * v
+        for a, b in ((front, half), (front, -half), (-rear, -half), (-rear, half))
+    ]
     return np.stack(out, 1)
 
 
 def truck_rects(pose, p):
     """Tractor and trailer corners at articulation 0 for ``pose [N, 3]`` (x, y, heading)."""
     x, y, h = pose.T
-    tractor = rect(x, y, h, p["wheelbase"] + p["front_overhang"], p["rear_overhang"],
-                   p["tractor_width"] / 2)
+    tractor = rect(
+        x, y, h, p["wheelbase"] + p["front_overhang"], p["rear_overhang"], p["tractor_width"] / 2
+    )
     back = p["kingpin_offset"] + p["trailer_wheelbase"]
     ax, ay = x - back * np.cos(h), y - back * np.sin(h)
-    trailer = rect(ax, ay, h, p["trailer_wheelbase"] + p["trailer_front_overhang"],
-                   p["trailer_rear_overhang"], p["trailer_width"] / 2)
+    trailer = rect(
+        ax,
+        ay,
+        h,
+        p["trailer_wheelbase"] + p["trailer_front_overhang"],
+        p["trailer_rear_overhang"],
+        p["trailer_width"] / 2,
+    )
     return tractor, trailer
 
 
@@ -106,9 +115,10 @@ def rect_seg_distance(corners, seg, mask):
 
     def cross(o, p, q):
         return (p[..., 0] - o[..., 0]) * (q[..., 1] - o[..., 1]) - (p[..., 1] - o[..., 1]) * (
-            q[..., 0] - o[..., 0])
+            q[..., 0] - o[..., 0]
+        )
 
-    proper = ((cross(a, b, c0) * cross(a, b, c1) < 0) & (cross(c0, c1, a) * cross(c0, c1, b) < 0))
+    proper = (cross(a, b, c0) * cross(a, b, c1) < 0) & (cross(c0, c1, a) * cross(c0, c1, b) < 0)
     # an endpoint inside the rectangle: on the inner side of all 4 edges
     inside = (cross(c0, c1, a) > 0).all(-1) | (cross(c0, c1, a) < 0).all(-1)
     d = np.where(proper.any(-1) | inside, 0.0, d)
@@ -137,7 +147,9 @@ def test_layout_and_kinds(batch):
     assert (s.kind[:, : 3 + B] == KIND_CURB).all() and (s.kind[:, 3 + B :] == KIND_OBSTACLE).all()
     # dock face on y = 0 and far curb on y = apron_depth, both spanning the row
     np.testing.assert_allclose(seg[:, 0, [1, 3]], 0.0, atol=TOL)
-    np.testing.assert_allclose(seg[:, 1, [1, 3]], np.repeat(info["apron_depth"][:, None], 2, 1), atol=TOL)
+    np.testing.assert_allclose(
+        seg[:, 1, [1, 3]], np.repeat(info["apron_depth"][:, None], 2, 1), atol=TOL
+    )
     # walls: num_bays + 1 of them, W apart, from the dock face to bay_depth, target centred
     W, nb = info["bay_width"], info["num_bays"].astype(int)
     walls = seg[:, 2 : 3 + B]
@@ -147,7 +159,10 @@ def test_layout_and_kinds(batch):
     ok = mask[:, 2 : 3 + B]
     assert np.abs(np.where(ok, walls[..., 0] - x_expect, 0)).max() < TOL
     assert np.abs(np.where(ok, walls[..., 2] - x_expect, 0)).max() < TOL
-    assert np.abs(np.where(ok, walls[..., 3] - walls[..., 1] - info["bay_depth"][:, None], 0)).max() < TOL
+    assert (
+        np.abs(np.where(ok, walls[..., 3] - walls[..., 1] - info["bay_depth"][:, None], 0)).max()
+        < TOL
+    )
 
 
 def test_target_bay_is_free(batch):

@@ -39,9 +39,17 @@ def test_specs_and_observation_size():
     check_env_specs(env, seed=0)
     td = env.reset()
     assert td["observation"].shape == (8, NUM_FEATURES + 4)
-    assert env.task.reverse and env.task.error_keys == ("trailer_rear_error", "trailer_heading_error")
+    assert env.task.reverse and env.task.error_keys == (
+        "trailer_rear_error",
+        "trailer_heading_error",
+    )
     assert set(env.task.reward_keys) == {
-        "r_progress", "r_trailer_heading", "r_time", "r_success", "r_collision", "r_timeout"
+        "r_progress",
+        "r_trailer_heading",
+        "r_time",
+        "r_success",
+        "r_collision",
+        "r_timeout",
     }
 
 
@@ -154,8 +162,13 @@ def test_reverse_speed_reachable():
 
 def test_tolerance_floors():
     env = dock_env(1)
-    for d, pos, ang in ((0.0, 19.2, math.pi), (3.0, 2.4, math.pi / 8), (5.0, 0.6, 0.1),
-                        (7.0, 0.15, 0.1), (9.0, 0.15, 0.1)):
+    for d, pos, ang in (
+        (0.0, 19.2, math.pi),
+        (3.0, 2.4, math.pi / 8),
+        (5.0, 0.6, 0.1),
+        (7.0, 0.15, 0.1),
+        (9.0, 0.15, 0.1),
+    ):
         env.set_difficulty(d)
         p, a = env.tolerances()
         assert p.item() == pytest.approx(pos, rel=1e-5) and a.item() == pytest.approx(ang, rel=1e-5)
@@ -210,5 +223,11 @@ def test_curriculum_off_and_forward_tasks_unaffected():
 
 def test_bays_must_fit_the_truck():
     with pytest.raises(ConfigError, match="bay_width"):
-        make_task(EnvConfig(task={"name": "dock", "scene": {"bay_width": [2.5, 3.0],
-                                                            "parked_width": [2.0, 2.2]}}))
+        make_task(
+            EnvConfig(
+                task={
+                    "name": "dock",
+                    "scene": {"bay_width": [2.5, 3.0], "parked_width": [2.0, 2.2]},
+                }
+            )
+        )

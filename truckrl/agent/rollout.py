@@ -20,6 +20,11 @@ from truckrl.task import OUTCOMES, EnvConfig, Quantity, shown
 Policy = TensorDictModuleBase | Callable[[TensorDictBase], TensorDictBase]
 
 
+#: State entries that hold a task's per-episode scene metadata ``{key: [N]}``: ``route`` (the
+#: intersection task's, named after its main key) and ``scene_info`` (other tasks).
+SCENE_INFO_ENTRIES = ("route", "scene_info")
+
+
 @torch.no_grad()
 def evaluate_policy(
     actor: Policy,
@@ -49,7 +54,8 @@ def evaluate_policy(
         ``errors`` at the episode's last step, in its shown unit (m or deg). It also holds each
         episode's scene, read from the env's state at reset, so that row ``i`` of every entry
         is the same episode: "trailer_length" [m] (front overhang + wheelbase + rear overhang)
-        and every scene metadata entry the task records (``state["route"]``): for the
+        and every scene metadata entry the task records (``state["route"]`` or
+        ``state["scene_info"]``, :data:`SCENE_INFO_ENTRIES`): for the
         intersection task the :data:`~truckrl.sim.scene.ROUTE_KEYS`, "route" (long,
         ``ROUTE_*``), "turn_angle" and "crossing_angle" [rad], "start_road_width",
         "goal_road_width" and "goal_distance" [m]. ``results`` is thus a valid input of
@@ -69,8 +75,9 @@ def evaluate_policy(
     td = env.reset()
     start = env.get_state()
     scene = {"trailer_length": trailer_length(start["params"])}
-    if "route" in start.keys():
-        scene |= {k: start["route", k] for k in start["route"].keys()}
+    for entry in SCENE_INFO_ENTRIES:
+        if entry in start.keys():
+            scene |= {k: start[entry, k] for k in start[entry].keys()}
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(env_cfg.max_steps):
             nxt = env.step(actor(td))["next"]

@@ -13,7 +13,8 @@ State (a ``TensorDict`` or a plain dict with ``batch [N]``)::
     step_count  [N] int64
     speed, accel, jerk, steer, steer_rate, steer_accel   [N]  control state (truckrl.sim.control)
     <error keys of the task>  [N]  errors to the goal (intersection: pos_error [m], ...)
-    route       {key: [N]}  scene metadata from the generator (route category, angles, ...)
+    route       {key: [N]}  scene metadata from the generator (route category, angles, ...);
+                            other tasks name theirs scene_info (evaluation bins by it)
 
 What differs between tasks lives in a :class:`Task` subclass: :meth:`Task.sample` (vehicles,
 scene, start and goal), :meth:`Task.errors`, :meth:`Task.success`, :meth:`Task.reward_terms`

@@ -58,13 +58,13 @@ from truckrl.sim.validation import ConfigError, param, validate
 from truckrl.sim.vehicle import trailer_axle
 from truckrl.task.base import Task
 from truckrl.task.config import SENSOR_SCALE, EnvConfig, TaskConfig
-from truckrl.task.schema import Quantity
+from truckrl.task.schema import CategoryDim, Quantity
 
 if TYPE_CHECKING:
     from tensordict import TensorDict
 
-#: State entry holding the scene metadata ``{key: [N]}`` (:data:`DOCK_INFO_KEYS`). Not ``route``:
-#: evaluation reads the intersection task's route keys from that entry.
+#: State entry holding the scene metadata ``{key: [N]}`` (:data:`DOCK_INFO_KEYS`); evaluation
+#: bins episodes by it (``category_dims``). ``route`` is the intersection task's.
 INFO_KEY = "scene_info"
 
 
@@ -169,6 +169,14 @@ class DockTask(Task):
         Quantity("trailer_heading_error", "rad", "trailer heading"),
     )
     success_state_keys = ("speed",)
+    category_dims = (
+        CategoryDim("start", "start_kind", names=("apron", "pulled out")),
+        CategoryDim(
+            "start distance [m]", "start_goal_distance", edges=(0.0, 10.0, 20.0, 40.0, 80.0)
+        ),
+        CategoryDim("neighbours parked", "neighbours_occupied", names=("none", "one", "both")),
+        CategoryDim("bay width [m]", "bay_width", edges=(3.5, 4.0, 4.5)),
+    )
     reward_keys = (
         "r_progress",
         "r_trailer_heading",
