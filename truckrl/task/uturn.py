@@ -1,0 +1,247 @@
+"""Task ``uturn``: turn an articulated truck round on a road too narrow for a forward loop.
+
+* Episodes: :func:`truckrl.sim.uturn_scene.generate_uturn_scenes` (a narrow straight road with a
+  side branch, left or right, sometimes a dead end; start heading towards the branch, goal
+  behind the start in the other lane facing back; rules and the proof that a forward U-turn does
+  not fit on the road in that module). The truck must reverse at least once: :attr:`reverse` is
+  True, so every truck gets a ``max_reverse_speed`` and the speed goes down to minus it.
+* Errors and success as the intersection task: tractor rear-axle position to the goal [m],
+  tractor and trailer heading to the goal heading [rad], all within ``30 m * 2**-d`` and
+  ``60 deg * 2**-d`` at difficulty ``d``, without collision or jack-knife.
+* Reward: the paper's terms and values (+0.05 per metre of progress, +0.5 per radian of tractor
+  and of trailer heading correction, time 0, +5 success, -7 collision or jack-knife, -8 timeout),
+  each a separate key.
+* Shaping (``env.task.reward.shaping``): ``goal`` measures progress as the straight distance to
+  the goal (the paper's). Here that punishes the manoeuvre's first half: the goal lies behind,
+  so driving forward to the branch loses reward, and reversing straight back down the start lane
+  towards the goal (heading still wrong) earns it, a dead end. ``route`` (default) measures
+  progress with the potential
+
+      to_go = w * (|p - T| + |T - g|) + (1 - w) * |p - g|,   w = (1 + cos(theta - theta_0)) / 2
+
+  with ``p`` the tractor rear axle, ``g`` the goal, ``T`` the **turning point** (on the branch
+  axis, ``turn_depth`` truck lengths... see :func:`turning_point`), ``theta`` the tractor heading
+  and ``theta_0`` the start heading. While the truck still faces the way it started (``w = 1``)
+  the distance to go runs via the branch; once it faces back (``w = 0``) it is the straight
+  distance to the goal; in between (in the branch) it blends. The heading terms stay measured
+  to the goal heading: turning round is what the task asks, wherever it happens. Being a
+  function of the state, the shaping is potential-based: the optimal policies are those of the
+  sparse terminal rewards, up to discounting. It still charges the pull past the branch (about
+  a truck length away from ``T``), the one part of the route it does not model.
+* Observation extras (2): signed speed / ``max_reverse_speed`` (below -1 never, < 0 reversing)
+  and ``max_reverse_speed`` mapped from its configured range to [-1, 1].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import torch
+from torch import Tensor
+
+from truckrl.sim.geometry import rotate, wrap_angle
+from truckrl.sim.uturn_scene import INFO_KEYS, UTurnSceneConfig, generate_uturn_scenes
+from truckrl.sim.validation import param, validate
+from truckrl.task.base import Task
+from truckrl.task.config import TaskConfig
+from truckrl.task.schema import Quantity
+
+if TYPE_CHECKING:
+    from tensordict import TensorDict
+
+#: State key of the per-episode scene metadata ``{key: [N]}`` (:data:`INFO_KEYS`). Not
+#: ``route``: that key holds the intersection task's route categories.
+INFO_STATE_KEY = "uturn"
+
+
+@dataclass
+class UTurnRewardConfig:
+    """Reward weights (the paper's values) and the progress shaping (module doc)."""
+
+    progress: float = param(0.05, unit="1/m", doc="per metre of progress", source="paper")
+    tractor_heading: float = param(
+        0.5, unit="1/rad", doc="per radian of tractor heading correction", source="paper"
+    )
+    trailer_heading: float = param(
+        0.5, unit="1/rad", doc="per radian of trailer heading correction", source="paper"
+    )
+    time: float = param(0.0, unit="1/step", doc="every step", source="paper")
+    success: float = param(5.0, doc="on success", source="paper")
+    collision: float = param(-7.0, doc="on collision or jack-knife", source="paper")
+    timeout: float = param(-8.0, doc="on timeout", source="paper")
+    shaping: str = param(
+        "route",
+        choices=("goal", "route"),
+        doc="progress measured straight to the goal (paper) or via the branch's turning point "
+        "(module doc)",
+    )
+    turn_depth: float = param(
+        0.5,
+        lo=0.0,
+        hi=1.0,
+        unit="branch depths",
+        doc="turning point on the branch axis, this fraction of the branch depth from the curb",
+    )
+
+    def __post_init__(self) -> None:
+        validate(self, "env.task.reward")
+
+
+@dataclass
+class UTurnConfig(TaskConfig):
+    """Config of the uturn task: scene rules and reward weights."""
+
+    name: str = param("uturn", choices=("uturn",), doc="task module")
+    scene: UTurnSceneConfig = field(default_factory=UTurnSceneConfig)
+    reward: UTurnRewardConfig = field(default_factory=UTurnRewardConfig)
+
+    def __post_init__(self) -> None:
+        validate(self, "env.task")
+
+
+def turning_point(frame: Tensor, info: dict[str, Tensor], depth_fraction: float) -> Tensor:
+    """The turning point ``T [N, 2]`` [m]: on the branch axis, ``depth_fraction`` of the branch
+    depth beyond the branch-side curb line (world coordinates).
+
+    Args:
+        frame: ``[N, 3]`` the scene's local frame (mouth centre, road heading).
+        info: scene metadata (``road_width``, ``branch_depth``, ``branch_side``,
+            ``branch_angle``).
+    """
+    a, side = info["branch_angle"], info["branch_side"]
+    depth = depth_fraction * info["branch_depth"]
+    # mouth centre on the curb line, then along b = (cos a, side sin a) to `depth` off the curb
+    local = torch.stack(
+        (depth * a.cos() / a.sin(), side * (0.5 * info["road_width"] + depth)), -1
+    )
+    return rotate(local, frame[:, 2]) + frame[:, :2]
+
+
+class UTurnTask(Task):
+    """Turnaround on a narrow road through a side branch; see the module docstring."""
+
+    name = "uturn"
+    config_class = UTurnConfig
+    reverse = True
+    error_quantities = (
+        Quantity("pos_error", "m", "position"),
+        Quantity("tractor_heading_error", "rad", "tractor heading"),
+        Quantity("trailer_heading_error", "rad", "trailer heading"),
+    )
+    reward_keys = (
+        "r_progress",
+        "r_tractor_heading",
+        "r_trailer_heading",
+        "r_time",
+        "r_success",
+        "r_collision",
+        "r_timeout",
+    )
+    num_extras = 2
+    #: ``turn_point [N, 2]`` (route shaping's ``T``) and ``start_heading [N]`` (``theta_0``).
+    extra_state_keys = ("turn_point", "start_heading")
+
+    def sample(self, m: int, rng: torch.Generator, device: torch.device) -> TensorDict:
+        from tensordict import TensorDict
+
+        params = self.sample_params(m, rng, device)
+        sc = generate_uturn_scenes(self.cfg.task.scene, params, rng, device)
+        scene = {
+            "start": sc.start,
+            "goal": sc.goal,
+            "segments": sc.segments,
+            "mask": sc.mask,
+            "kind": sc.kind,
+        }
+        state = self.initial_state(params, scene, device)
+        state[INFO_STATE_KEY] = TensorDict(
+            {**sc.info, "frame": sc.frame}, batch_size=[m], device=device
+        )
+        return self.complete_state(state)
+
+    def complete_state(self, state: TensorDict) -> TensorDict:
+        """Add ``start_heading`` (the current tractor heading) and ``turn_point`` where missing.
+
+        ``turn_point`` needs the scene metadata (``state["uturn"]``); a state built by hand
+        without it gets the midpoint of the start and the goal (route shaping then degrades to
+        a detour through that point).
+        """
+        keys = state.keys()
+        if "start_heading" not in keys:
+            state["start_heading"] = state["pose"][:, 2].clone()
+        if "turn_point" not in keys:
+            if INFO_STATE_KEY in keys:
+                info = state[INFO_STATE_KEY]
+                depth = self.cfg.task.reward.turn_depth
+                state["turn_point"] = turning_point(
+                    info["frame"], {k: info[k] for k in INFO_KEYS}, depth
+                )
+            else:
+                state["turn_point"] = 0.5 * (state["pose"][:, :2] + state["goal"][:, :2])
+        return state
+
+    def errors(self, s: dict[str, Any]) -> dict[str, Tensor]:
+        """Position of the tractor rear axle to the goal [m]; tractor and trailer heading to the
+        goal heading [rad] (as the intersection task)."""
+        pose, goal = s["pose"], s["goal"]
+        pos = torch.hypot(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1])
+        tractor = wrap_angle(goal[:, 2] - pose[:, 2]).abs()
+        trailer = wrap_angle(goal[:, 2] - pose[:, 2] - pose[:, 3]).abs()
+        return {
+            "pos_error": pos,
+            "tractor_heading_error": tractor,
+            "trailer_heading_error": trailer,
+        }
+
+    def success(self, err: dict[str, Tensor], tol_pos: Tensor, tol_ang: Tensor) -> Tensor:
+        return (
+            (err["pos_error"] <= tol_pos)
+            & (err["tractor_heading_error"] <= tol_ang)
+            & (err["trailer_heading_error"] <= tol_ang)
+        )
+
+    def reward_terms(
+        self, before: dict[str, Any], after: dict[str, Any], flags: dict[str, Tensor]
+    ) -> dict[str, Tensor]:
+        w = self.cfg.task.reward
+        zero = torch.zeros_like(after["pos_error"])
+        failed = flags["collision"] | flags["jackknife"]
+        if w.shaping == "route":
+            progress = route_to_go(before) - route_to_go(after)
+        else:
+            progress = before["pos_error"] - after["pos_error"]
+        return {
+            "r_progress": w.progress * progress,
+            "r_tractor_heading": w.tractor_heading
+            * (before["tractor_heading_error"] - after["tractor_heading_error"]),
+            "r_trailer_heading": w.trailer_heading
+            * (before["trailer_heading_error"] - after["trailer_heading_error"]),
+            "r_time": zero + w.time,
+            "r_success": torch.where(flags["success"], w.success, zero),
+            "r_collision": torch.where(failed, w.collision, zero),
+            "r_timeout": torch.where(flags["truncated"], w.timeout, zero),
+        }
+
+    def observation_extras(self, s: dict[str, Any]) -> Tensor:
+        """``[N, 2]``: signed speed / ``max_reverse_speed``; ``max_reverse_speed`` mapped from
+        ``env.vehicle.max_reverse_speed`` to [-1, 1] (0 for a range of one value)."""
+        p = s["params"]
+        v_rev = p["max_reverse_speed"]
+        lo, hi = self.cfg.vehicle.max_reverse_speed
+        span = hi - lo
+        norm = (v_rev - 0.5 * (lo + hi)) * (2.0 / span) if span > 0 else v_rev * 0.0
+        return torch.stack((s["speed"] / v_rev, norm), -1)
+
+
+def route_to_go(s: dict[str, Any]) -> Tensor:
+    """Route shaping's distance to go ``[N]`` [m] (module doc): via the turning point while the
+    tractor faces the start direction, straight to the goal once it faces back, blended by
+    ``w = (1 + cos(theta - theta_0)) / 2``."""
+    p, g, t = s["pose"][:, :2], s["goal"][:, :2], s["turn_point"]
+    w = 0.5 * (1.0 + torch.cos(s["pose"][:, 2] - s["start_heading"]))
+    via = (p - t).norm(dim=-1) + (t - g).norm(dim=-1)
+    return w * via + (1.0 - w) * (p - g).norm(dim=-1)
+
+
+TASK = UTurnTask
