@@ -119,7 +119,7 @@ class UTurnSceneConfig:
     """
 
     road_width: tuple[float, float] = _metres(
-        (7.0, 10.0),
+        (9.0, 12.0),
         "road width, curb to curb; per truck at most 2 R + w_t - forward_margin",
         hi=100.0,
     )
@@ -131,7 +131,7 @@ class UTurnSceneConfig:
         doc="road and branch stay this much narrower than a forward U-turn needs (2 R + w_t)",
     )
     branch_width: tuple[float, float] = _metres(
-        (6.0, 9.0),
+        (10.0, 13.0),
         "branch width across its axis; per truck clamped to [W_max + 2 branch_side_clearance, "
         "2 R + w_t - forward_margin]",
         hi=100.0,
@@ -155,7 +155,7 @@ class UTurnSceneConfig:
     )
     left_prob: float = param(0.5, lo=0.0, hi=1.0, unit="-", doc="probability of a left branch")
     mouth_chamfer: tuple[float, float] = param(
-        (2.0, 4.0), lo=0.0, hi=20.0, unit="m", doc="corner cut at both mouth corners (each leg)"
+        (4.0, 7.0), lo=0.0, hi=20.0, unit="m", doc="corner cut at both mouth corners (each leg)"
     )
     dead_end_prob: float = param(
         0.3, lo=0.0, hi=1.0, unit="-", doc="probability of a wall across the road past the branch"

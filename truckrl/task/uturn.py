@@ -20,7 +20,8 @@
       to_go = w * (|p - T| + |T - g|) + (1 - w) * |p - g|,   w = (1 + cos(theta - theta_0)) / 2
 
   with ``p`` the tractor rear axle, ``g`` the goal, ``T`` the **turning point** (on the branch
-  axis, ``turn_depth`` truck lengths... see :func:`turning_point`), ``theta`` the tractor heading
+  axis, ``turn_depth`` of the branch depth beyond the curb: :func:`turning_point`), ``theta`` the
+  tractor heading
   and ``theta_0`` the start heading. While the truck still faces the way it started (``w = 1``)
   the distance to go runs via the branch; once it faces back (``w = 0``) it is the straight
   distance to the goal; in between (in the branch) it blends. The heading terms stay measured
