@@ -70,8 +70,10 @@ Metadata (``UTurnSceneBatch.info``, each ``[N]``, see :data:`INFO_KEYS`)
 line, perpendicular to the road), ``branch_side`` (+1 left, -1 right), ``branch_angle`` [rad]
 (axis from the start's heading, unsigned in ``(0, pi)``), ``goal_distance`` [m] (start to goal
 rear axles, straight), ``dead_end`` (1.0 / 0.0), ``turn_radius`` [m] (``R``), ``forward_width``
-[m] (``2 R + w_t``), ``truck_length`` [m] (``L``), ``start_gap`` [m]. Recording them draws no
-random numbers.
+[m] (``2 R + w_t``), ``truck_length`` [m] (``L``), ``start_gap`` [m], ``branch_left`` (1.0 left,
+0.0 right: ``branch_side`` as a category code), and the local frame: ``mouth_x``, ``mouth_y`` [m]
+(the mouth centre) and ``road_heading`` [rad] (the start's heading, = ``frame``). Recording them
+draws no random numbers.
 """
 
 from __future__ import annotations
@@ -103,6 +105,10 @@ INFO_KEYS: tuple[str, ...] = (
     "forward_width",
     "truck_length",
     "start_gap",
+    "branch_left",
+    "mouth_x",
+    "mouth_y",
+    "road_heading",
 )
 
 
@@ -380,6 +386,10 @@ def generate_uturn_scenes(
         "forward_width": fwd_width,
         "truck_length": length,
         "start_gap": start_gap,
+        "branch_left": (sigma > 0).float(),
+        "mouth_x": centre[:, 0],
+        "mouth_y": centre[:, 1],
+        "road_heading": heading,
     }
     frame = torch.cat((centre, heading[:, None]), -1)
     return UTurnSceneBatch(segments, mask, kind, start, goal, frame, info)

@@ -35,6 +35,8 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -46,14 +48,14 @@ from truckrl.sim.uturn_scene import INFO_KEYS, UTurnSceneConfig, generate_uturn_
 from truckrl.sim.validation import param, validate
 from truckrl.task.base import Task
 from truckrl.task.config import TaskConfig
-from truckrl.task.schema import Quantity
+from truckrl.task.schema import CategoryDim, Quantity
 
 if TYPE_CHECKING:
     from tensordict import TensorDict
 
-#: State key of the per-episode scene metadata ``{key: [N]}`` (:data:`INFO_KEYS`). Not
-#: ``route``: that key holds the intersection task's route categories.
-INFO_STATE_KEY = "uturn"
+#: State key of the per-episode scene metadata ``{key: [N]}`` (:data:`INFO_KEYS`): the key every
+#: task records its scene metadata under (evaluation bins episodes by it, ``category_dims``).
+INFO_STATE_KEY = "route"
 
 
 @dataclass
@@ -101,14 +103,13 @@ class UTurnConfig(TaskConfig):
         validate(self, "env.task")
 
 
-def turning_point(frame: Tensor, info: dict[str, Tensor], depth_fraction: float) -> Tensor:
+def turning_point(info: Mapping[str, Tensor], depth_fraction: float) -> Tensor:
     """The turning point ``T [N, 2]`` [m]: on the branch axis, ``depth_fraction`` of the branch
     depth beyond the branch-side curb line (world coordinates).
 
     Args:
-        frame: ``[N, 3]`` the scene's local frame (mouth centre, road heading).
-        info: scene metadata (``road_width``, ``branch_depth``, ``branch_side``,
-            ``branch_angle``).
+        info: scene metadata ``{key: [N]}`` (``road_width``, ``branch_depth``, ``branch_side``,
+            ``branch_angle`` and the frame ``mouth_x``, ``mouth_y``, ``road_heading``).
     """
     a, side = info["branch_angle"], info["branch_side"]
     depth = depth_fraction * info["branch_depth"]
@@ -116,7 +117,8 @@ def turning_point(frame: Tensor, info: dict[str, Tensor], depth_fraction: float)
     local = torch.stack(
         (depth * a.cos() / a.sin(), side * (0.5 * info["road_width"] + depth)), -1
     )
-    return rotate(local, frame[:, 2]) + frame[:, :2]
+    mouth = torch.stack((info["mouth_x"], info["mouth_y"]), -1)
+    return rotate(local, info["road_heading"]) + mouth
 
 
 class UTurnTask(Task):
@@ -140,6 +142,19 @@ class UTurnTask(Task):
         "r_timeout",
     )
     num_extras = 2
+    category_dims = (
+        CategoryDim("branch side", "branch_left", names=("right", "left")),
+        CategoryDim("dead end", "dead_end", names=("open road", "dead end")),
+        CategoryDim("road width [m]", "road_width", edges=(9.0, 10.0, 11.0, 12.0)),
+        CategoryDim("branch width [m]", "branch_width", edges=(10.0, 11.5, 13.0)),
+        CategoryDim(
+            "branch angle [deg]",
+            "branch_angle",
+            edges=(75.0, 85.0, 95.0, 105.0),
+            scale=180.0 / math.pi,
+        ),
+        CategoryDim("truck length [m]", "truck_length", edges=(12.0, 15.0, 18.0, 21.0)),
+    )
     #: ``turn_point [N, 2]`` (route shaping's ``T``) and ``start_heading [N]`` (``theta_0``).
     extra_state_keys = ("turn_point", "start_heading")
 
@@ -156,15 +171,13 @@ class UTurnTask(Task):
             "kind": sc.kind,
         }
         state = self.initial_state(params, scene, device)
-        state[INFO_STATE_KEY] = TensorDict(
-            {**sc.info, "frame": sc.frame}, batch_size=[m], device=device
-        )
+        state[INFO_STATE_KEY] = TensorDict(sc.info, batch_size=[m], device=device)
         return self.complete_state(state)
 
     def complete_state(self, state: TensorDict) -> TensorDict:
         """Add ``start_heading`` (the current tractor heading) and ``turn_point`` where missing.
 
-        ``turn_point`` needs the scene metadata (``state["uturn"]``); a state built by hand
+        ``turn_point`` needs the scene metadata (``state["route"]``); a state built by hand
         without it gets the midpoint of the start and the goal (route shaping then degrades to
         a detour through that point).
         """
@@ -174,9 +187,8 @@ class UTurnTask(Task):
         if "turn_point" not in keys:
             if INFO_STATE_KEY in keys:
                 info = state[INFO_STATE_KEY]
-                depth = self.cfg.task.reward.turn_depth
                 state["turn_point"] = turning_point(
-                    info["frame"], {k: info[k] for k in INFO_KEYS}, depth
+                    {k: info[k] for k in INFO_KEYS}, self.cfg.task.reward.turn_depth
                 )
             else:
                 state["turn_point"] = 0.5 * (state["pose"][:, :2] + state["goal"][:, :2])
