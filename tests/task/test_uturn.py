@@ -1,0 +1,146 @@
+"""Task uturn (truckrl/task/uturn.py): specs, hand-computed errors and rewards, reversing."""
+
+import math
+
+import pytest
+import torch
+from torchrl.envs.utils import check_env_specs
+
+from tests.conftest import compose_config
+from truckrl.cli import to_config
+from truckrl.configs import TrainConfig
+from truckrl.env import TruckEnv
+from truckrl.task.base import NUM_FEATURES
+from truckrl.task.config import EnvConfig
+from truckrl.task.uturn import UTurnTask, route_to_go, turning_point
+
+UTURN = {"task": {"name": "uturn"}}
+
+
+def test_check_env_specs():
+    env = TruckEnv(num_envs=3, config=UTURN, seed=0)
+    check_env_specs(env, seed=1)
+    td = env.reset()
+    assert td["observation"].shape == (3, NUM_FEATURES + 2)
+    state = env.get_state()
+    assert "max_reverse_speed" in state["params"].keys()
+    assert {"road_width", "branch_side", "branch_angle", "goal_distance"} <= set(
+        state["route"].keys()
+    )
+
+
+def test_experiment_preset_composes():
+    tc = to_config(TrainConfig, compose_config("train", "experiment=uturn"))
+    assert tc.env.task.name == "uturn"
+    assert tc.env.max_steps == 1000 and tc.ppo.gamma == 0.998
+    assert tc.collector.num_envs == 1024  # the fast layout underneath
+
+
+def hand_state(pose, goal=(0.0, 0.0, math.pi)):
+    return {
+        "pose": torch.tensor([pose]),
+        "goal": torch.tensor([goal]),
+        "turn_point": torch.tensor([[10.0, 0.0]]),
+        "start_heading": torch.tensor([0.0]),
+    }
+
+
+def test_errors_by_hand():
+    task = UTurnTask(EnvConfig(task=UTURN["task"]))
+    err = task.errors(hand_state((3.0, 4.0, 0.3, 0.1)))
+    assert err["pos_error"].item() == pytest.approx(5.0)
+    assert err["tractor_heading_error"].item() == pytest.approx(math.pi - 0.3, abs=1e-6)
+    assert err["trailer_heading_error"].item() == pytest.approx(math.pi - 0.4, abs=1e-6)
+    # wrapping: heading -3.0 is pi - 3.0 short of -pi (= pi); the trailer's -3.2 is past it
+    err = task.errors(hand_state((0.0, 0.0, -3.0, -0.2)))
+    assert err["tractor_heading_error"].item() == pytest.approx(math.pi - 3.0, abs=1e-6)
+    assert err["trailer_heading_error"].item() == pytest.approx(3.2 - math.pi, abs=1e-6)
+
+
+def test_rewards_by_hand():
+    """Route shaping: to_go = w (|p - T| + |T - g|) + (1 - w) |p - g|, w = (1 + cos(theta -
+    theta_0)) / 2, with T = (10, 0), g = (0, 0), theta_0 = 0."""
+    task = UTurnTask(EnvConfig(task=UTURN["task"]))
+    before = hand_state((3.0, 4.0, 0.0, 0.0))
+    after = hand_state((6.0, 4.0, math.pi / 2, -0.5))
+    for s in (before, after):
+        s.update(task.errors(s))
+    # before: w = 1, |p - T| = sqrt(49 + 16), |T - g| = 10
+    to_go_b = math.sqrt(65.0) + 10.0
+    # after: w = 1/2, |p - T| = sqrt(16 + 16), |p - g| = sqrt(36 + 16)
+    to_go_a = 0.5 * (math.sqrt(32.0) + 10.0) + 0.5 * math.sqrt(52.0)
+    assert route_to_go(before).item() == pytest.approx(to_go_b, rel=1e-6)
+    assert route_to_go(after).item() == pytest.approx(to_go_a, rel=1e-6)
+    no = torch.tensor([False])
+    flags = {"success": no, "collision": torch.tensor([True]), "jackknife": no, "truncated": no}
+    r = task.reward_terms(before, after, flags)
+    assert tuple(r) == task.reward_keys
+    assert r["r_progress"].item() == pytest.approx(0.05 * (to_go_b - to_go_a), rel=1e-5)
+    # headings to the goal's pi: tractor pi -> pi/2, trailer pi -> pi/2 + 0.5 (+0.5 rad wrong)
+    assert r["r_tractor_heading"].item() == pytest.approx(0.5 * (math.pi / 2), rel=1e-5)
+    assert r["r_trailer_heading"].item() == pytest.approx(0.5 * (math.pi / 2 - 0.5), rel=1e-5)
+    assert r["r_collision"].item() == -7.0
+    assert r["r_success"].item() == 0.0 and r["r_timeout"].item() == 0.0 and r["r_time"].item() == 0
+    flags = {"success": torch.tensor([True]), "collision": no, "jackknife": no, "truncated": no}
+    assert task.reward_terms(before, after, flags)["r_success"].item() == 5.0
+    flags = {"success": no, "collision": no, "jackknife": no, "truncated": torch.tensor([True])}
+    assert task.reward_terms(before, after, flags)["r_timeout"].item() == -8.0
+    # the paper's shaping: straight distance to the goal, 5 -> sqrt(52)
+    goal_task = UTurnTask(EnvConfig(task={"name": "uturn", "reward": {"shaping": "goal"}}))
+    r = goal_task.reward_terms(before, after, flags)
+    assert r["r_progress"].item() == pytest.approx(0.05 * (5.0 - math.sqrt(52.0)), rel=1e-5)
+
+
+def test_turning_point_on_the_branch_axis():
+    """T = mouth + R(heading) (depth cot a, side (W / 2 + depth)), depth = 0.5 branch depth."""
+    info = {
+        "road_width": torch.tensor([8.0, 8.0]),
+        "branch_depth": torch.tensor([20.0, 20.0]),
+        "branch_side": torch.tensor([1.0, -1.0]),
+        "branch_angle": torch.tensor([math.pi / 2, math.pi / 4]),
+        "mouth_x": torch.tensor([1.0, 0.0]),
+        "mouth_y": torch.tensor([2.0, 0.0]),
+        "road_heading": torch.tensor([math.pi / 2, 0.0]),
+    }
+    t = turning_point(info, 0.5)
+    # scene 0: local (0, 4 + 10) turned by 90 deg -> (-14, 0), plus the mouth
+    assert torch.allclose(t[0], torch.tensor([-13.0, 2.0]), atol=1e-5)
+    # scene 1: right branch leaning forward at 45 deg: local (10, -(4 + 10))
+    assert torch.allclose(t[1], torch.tensor([10.0, -14.0]), atol=1e-5)
+
+
+def test_negative_speed_reachable():
+    """The default control (acceleration + steering rate): full braking at rest reverses, down
+    to -max_reverse_speed, the truck moves backwards, and the extras show it."""
+    env = TruckEnv(num_envs=4, config=UTURN, seed=3)
+    td = env.reset()
+    start = env.get_state()
+    for _ in range(40):
+        td["action"] = torch.tensor([[-1.0, 0.0]]).expand(4, 2)
+        td = env.step(td)["next"]
+    s = env.get_state()
+    v_rev = s["params", "max_reverse_speed"]
+    assert torch.allclose(s["speed"], -v_rev)
+    heading = start["pose"][:, 2]
+    moved = s["pose"][:, :2] - start["pose"][:, :2]
+    along = moved[:, 0] * heading.cos() + moved[:, 1] * heading.sin()
+    assert (along < -5.0).all()
+    obs = td["observation"]
+    assert torch.allclose(obs[:, NUM_FEATURES], torch.full((4,), -1.0))
+    lo, hi = env.config.vehicle.max_reverse_speed
+    assert torch.allclose(obs[:, NUM_FEATURES + 1], (v_rev - (lo + hi) / 2) / ((hi - lo) / 2))
+
+
+def test_hand_built_state_gets_a_turning_point():
+    """A state without scene metadata (set_state from a hand-made state) still runs."""
+    env = TruckEnv(num_envs=2, config=UTURN, seed=0)
+    env.reset()
+    state = env.get_state()
+    want = state["turn_point"].clone()
+    del state["turn_point"]
+    env.set_state(state.clone())
+    assert torch.allclose(env.get_state()["turn_point"], want)
+    del state["route"]
+    env.set_state(state)
+    mid = 0.5 * (state["pose"][:, :2] + state["goal"][:, :2])
+    assert torch.allclose(env.get_state()["turn_point"], mid)
