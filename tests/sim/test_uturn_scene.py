@@ -64,7 +64,9 @@ def footprint(pose: np.ndarray, p: dict) -> tuple[np.ndarray, np.ndarray]:
         ]
         return np.stack(pts, 1)
 
-    tractor = rect(p["wheelbase"] + p["front_overhang"], p["rear_overhang"], 0.5 * p["tractor_width"])
+    tractor = rect(
+        p["wheelbase"] + p["front_overhang"], p["rear_overhang"], 0.5 * p["tractor_width"]
+    )
     axle = p["kingpin_offset"] + p["trailer_wheelbase"]
     trailer = rect(
         p["trailer_wheelbase"] + p["trailer_front_overhang"] - axle,
@@ -176,7 +178,7 @@ def test_forward_uturn_bound_is_real():
     params = sample_vehicle_params(VehicleConfig(), 500, generator=g)
     pose = torch.zeros(500, 4)
     steer = params["max_steer"]
-    y_lo = y_hi = torch.zeros(500)
+    y_hi = torch.zeros(500)
     radius = params["wheelbase"] / torch.tan(steer)
     done = torch.zeros(500, dtype=torch.bool)
     for _ in range(4000):
@@ -194,8 +196,13 @@ def test_branch_takes_the_truck(batch):
     """Depth >= truck length, width >= widest body + 2 clearance; and the segments really have
     that width (side walls) and depth (end wall to the curb line)."""
     cfg, sc, p = batch
-    length = p["wheelbase"] + p["front_overhang"] + np.maximum(
-        p["rear_overhang"], p["kingpin_offset"] + p["trailer_wheelbase"] + p["trailer_rear_overhang"]
+    length = (
+        p["wheelbase"]
+        + p["front_overhang"]
+        + np.maximum(
+            p["rear_overhang"],
+            p["kingpin_offset"] + p["trailer_wheelbase"] + p["trailer_rear_overhang"],
+        )
     )
     widest = np.maximum(p["tractor_width"], p["trailer_width"])
     info = {k: v.double().numpy() for k, v in sc.info.items()}
@@ -241,10 +248,13 @@ def test_metadata_within_range(batch):
     assert 0.45 < info["branch_left"].mean() < 0.55
     lo, hi = cfg.branch_angle
     assert ((info["branch_angle"] >= lo - 1e-6) & (info["branch_angle"] <= hi + 1e-6)).all()
-    assert ((info["start_gap"] >= cfg.start_gap[0] - TOL) & (info["start_gap"] <= cfg.start_gap[1] + TOL)).all()
-    assert np.allclose(
-        info["road_heading"], sc.start[:, 2].double().numpy(), atol=1e-5
-    ), "the frame's heading is the start's"
+    assert (
+        (info["start_gap"] >= cfg.start_gap[0] - TOL)
+        & (info["start_gap"] <= cfg.start_gap[1] + TOL)
+    ).all()
+    assert np.allclose(info["road_heading"], sc.start[:, 2].double().numpy(), atol=1e-5), (
+        "the frame's heading is the start's"
+    )
     assert (info["goal_distance"] > 0).all() and (info["goal_distance"] < 40.0).all()
 
 
@@ -288,7 +298,15 @@ class TurnaroundDriver:
     """
 
     def __init__(
-        self, state, lane_y, arc_radius, pass_margin, exit_look, exit_shift=0.0, v_fwd=2.0, v_rev=1.2
+        self,
+        state,
+        lane_y,
+        arc_radius,
+        pass_margin,
+        exit_look,
+        exit_shift=0.0,
+        v_fwd=2.0,
+        v_rev=1.2,
     ):
         info = state["route"]
         self.p = {k: state["params", k] for k in state["params"].keys()}
@@ -317,7 +335,9 @@ class TurnaroundDriver:
         s = torch.linspace(0.0, 1.0, 120)[None]  # [1, 120]
         ang = math.pi + turn[:, None] * s  # motion heading along the arc
         centre = torch.stack((x_arc, y0 + r), -1)  # clockwise: the centre is on the right
-        arc = centre[:, None] + r[:, None, None] * torch.stack((-torch.sin(ang), torch.cos(ang)), -1)
+        arc = centre[:, None] + r[:, None, None] * torch.stack(
+            (-torch.sin(ang), torch.cos(ang)), -1
+        )
         back = torch.stack((x_arc[:, None] + 40.0 * (1 - s), y0[:, None] + 0 * s), -1)
         axis = torch.stack((torch.cos(a), torch.sin(a)), -1)
         up = arc[:, -1:] + (40.0 * s[..., None]) * axis[:, None]
@@ -362,8 +382,13 @@ class TurnaroundDriver:
         alpha = wrap(torch.atan2(d[:, 1], d[:, 0]) - q[:, 2])
         steer2 = torch.atan(2 * l_t * torch.sin(alpha) / d.norm(dim=-1))
         speed = torch.stack(
-            (torch.full_like(psi, self.v_fwd), torch.full_like(psi, -self.v_rev),
-             torch.full_like(psi, self.v_fwd), torch.zeros_like(psi)), -1
+            (
+                torch.full_like(psi, self.v_fwd),
+                torch.full_like(psi, -self.v_rev),
+                torch.full_like(psi, self.v_fwd),
+                torch.zeros_like(psi),
+            ),
+            -1,
         ).gather(1, ph[:, None])[:, 0]
         steer = torch.stack((steer0, steer1, steer2, 0 * steer0), -1).gather(1, ph[:, None])[:, 0]
         steer = self.side * torch.maximum(torch.minimum(steer, p["max_steer"]), -p["max_steer"])
@@ -374,15 +399,36 @@ class TurnaroundDriver:
 #: A mid-range truck (16 m long, R = 5.3 m) and a scene of the default ranges' middle; right
 #: branch, so the mirroring is exercised.
 FIXED_TRUCK = dict(
-    wheelbase=3.8, front_overhang=1.4, rear_overhang=0.9, tractor_width=2.45, kingpin_offset=0.0,
-    cab_gap=0.95, trailer_wheelbase=8.5, trailer_front_overhang=1.25, trailer_rear_overhang=2.25,
-    trailer_width=2.5, max_steer=0.62, max_articulation=1.3, max_speed=8.0, max_accel=2.25,
-    max_jerk=3.5, max_steer_rate=0.6, max_steer_accel=2.0, max_reverse_speed=2.25,
+    wheelbase=3.8,
+    front_overhang=1.4,
+    rear_overhang=0.9,
+    tractor_width=2.45,
+    kingpin_offset=0.0,
+    cab_gap=0.95,
+    trailer_wheelbase=8.5,
+    trailer_front_overhang=1.25,
+    trailer_rear_overhang=2.25,
+    trailer_width=2.5,
+    max_steer=0.62,
+    max_articulation=1.3,
+    max_speed=8.0,
+    max_accel=2.25,
+    max_jerk=3.5,
+    max_steer_rate=0.6,
+    max_steer_accel=2.0,
+    max_reverse_speed=2.25,
 )
 FIXED_SCENE = dict(
-    road_width=(10.5, 10.5), branch_width=(11.0, 11.0), branch_depth_factor=(1.3, 1.3),
-    branch_angle=(math.pi / 2, math.pi / 2), left_prob=0.0, mouth_chamfer=(6.0, 6.0),
-    dead_end_prob=0.0, start_gap=(10.0, 10.0), goal_back=(5.0, 5.0), shoulder_gap=(0.5, 0.5),
+    road_width=(10.5, 10.5),
+    branch_width=(11.0, 11.0),
+    branch_depth_factor=(1.3, 1.3),
+    branch_angle=(math.pi / 2, math.pi / 2),
+    left_prob=0.0,
+    mouth_chamfer=(6.0, 6.0),
+    dead_end_prob=0.0,
+    start_gap=(10.0, 10.0),
+    goal_back=(5.0, 5.0),
+    shoulder_gap=(0.5, 0.5),
 )
 
 

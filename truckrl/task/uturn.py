@@ -114,9 +114,7 @@ def turning_point(info: Mapping[str, Tensor], depth_fraction: float) -> Tensor:
     a, side = info["branch_angle"], info["branch_side"]
     depth = depth_fraction * info["branch_depth"]
     # mouth centre on the curb line, then along b = (cos a, side sin a) to `depth` off the curb
-    local = torch.stack(
-        (depth * a.cos() / a.sin(), side * (0.5 * info["road_width"] + depth)), -1
-    )
+    local = torch.stack((depth * a.cos() / a.sin(), side * (0.5 * info["road_width"] + depth)), -1)
     mouth = torch.stack((info["mouth_x"], info["mouth_y"]), -1)
     return rotate(local, info["road_heading"]) + mouth
 
