@@ -53,10 +53,12 @@ at least ``2 R + w_t`` wide (the trailer only adds to it). Every scene has
     road_width   <= 2 R + w_t - forward_margin      (no forward loop on the road)
     branch_width <= 2 R + w_t - forward_margin      (none across the branch either)
 
-so the truck cannot turn round forward on the road nor inside the branch. (Not proved: that no
-forward loop fits through the junction's corner, road and branch together; the branch's depth
-lets a loop gain the ``2 R`` sideways, but its width then bounds the lengthwise motion, and the
-trailer, at least ``6.9 m`` long with the default ranges, does not fit across it.)
+so the truck cannot turn round forward on the road, nor inside the branch (the same argument
+across the branch: from heading ``pi / 2`` into it to ``3 pi / 2`` out of it, the axle moves
+``2 R`` along the road). Not excluded by this bound: a forward loop that uses the road, the
+chamfered mouth and the branch together (heading ``0 -> pi`` ending up in the branch, then out
+and round on the road). Whether such a loop exists for the tractor-trailer at the sampled
+geometry is not checked here; a forward-only run of the planner baseline (issue 14) would be.
 
 Why the branch takes the truck (the branch rule)
 ------------------------------------------------
