@@ -31,6 +31,9 @@
   a truck length away from ``T``), the one part of the route it does not model.
 * Observation extras (2): signed speed / ``max_reverse_speed`` (below -1 never, < 0 reversing)
   and ``max_reverse_speed`` mapped from its configured range to [-1, 1].
+* Scene metadata: ``state["route"]`` holds the generator's per-episode ``info``
+  (:data:`~truckrl.sim.uturn_scene.INFO_KEYS`); :attr:`UTurnTask.category_dims` bins evaluation
+  by branch side, dead end, road width, branch width, branch angle and truck length.
 """
 
 from __future__ import annotations
