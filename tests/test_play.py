@@ -412,7 +412,9 @@ def test_speed_mode_setpoint_goes_below_zero_in_a_reversing_task(tmp_path):
 
 @pytest.mark.parametrize("control", [("accel", "rate"), ("speed", "angle")])
 def test_forward_task_s_at_rest_stays_at_zero(tmp_path, control):
-    runner, _, states = drive(tmp_path, "S 5\nW 3\nS 10\n", EnvConfig(control=ControlConfig(*control)))
+    runner, _, states = drive(
+        tmp_path, "S 5\nW 3\nS 10\n", EnvConfig(control=ControlConfig(*control))
+    )
     v = [float(s["speed"]) for s in states]
     assert min(v) == 0.0 and v[5] == 0.0 and v[-1] == 0.0 and max(v) > 0
     assert _gear(runner) == "N"
