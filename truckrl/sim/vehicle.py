@@ -34,8 +34,9 @@ along the trailer heading), not a small-angle approximation. The same equations 
 sin(phi)`` gives ``tan(phi / 2) = tan(phi0 / 2) exp(-v t / L_ka)``, which decays forward and
 *grows* in reverse. The articulation is open-loop unstable when reversing: without steering
 corrections it runs to ``max_articulation`` (:func:`jackknifed`), and a steady steering angle
-does so from ``phi = 0`` within ``max_articulation / (|v| k (1 - |a_tk| / L_ka))`` seconds (``k = tan(delta) /
-L_t``). ``tests/sim/test_reverse.py`` checks reversing against these answers and a fine RK4.
+does so from ``phi = 0`` within ``max_articulation / (|v| k (1 - |a_tk| / L_ka))`` seconds
+(``k = tan(delta) / L_t``). ``tests/sim/test_reverse.py`` checks reversing against these answers
+and a fine RK4.
 """
 
 from __future__ import annotations
