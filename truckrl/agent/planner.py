@@ -75,7 +75,7 @@ from truckrl.env import TruckEnv
 from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES, MODE_TABLE
 from truckrl.sim.scene import ROUTE_KEYS
 from truckrl.sim.validation import ConfigError, build, check_range, param, validate
-from truckrl.sim.vehicle import PARAM_KEYS
+from truckrl.sim.vehicle import PARAM_KEYS, REVERSE_KEYS
 from truckrl.task import MAX_DIFFICULTY, OUTCOMES, EnvConfig, Quantity, make_task, shown
 
 #: Cost subtracted from a successful candidate: every success ranks before every failure.
@@ -207,10 +207,15 @@ def _interp(knots: Tensor, frac: Tensor) -> Tensor:
     return lo + w * (hi - lo)
 
 
-def _flat(state: TensorDictBase, keys: Sequence[str]) -> dict[str, Any]:
+def _flat(state: TensorDictBase, keys: Sequence[str], reverse: bool = False) -> dict[str, Any]:
     out = {k: state[k] for k in keys}
-    out["params"] = {k: state["params", k] for k in PARAM_KEYS}
+    out["params"] = {k: state["params", k] for k in _param_keys(reverse)}
     return out
+
+
+def _param_keys(reverse: bool) -> tuple[str, ...]:
+    """The vehicle parameters of a task's trucks (:data:`REVERSE_KEYS` too if it reverses)."""
+    return (*PARAM_KEYS, *REVERSE_KEYS) if reverse else PARAM_KEYS
 
 
 class Planner:
@@ -304,6 +309,46 @@ class Planner:
         w = plan[:, 3]
         return torch.atan(((1.0 - w) * k_tractor + w * k_trailer) * p["wheelbase"])
 
+    def _pursuit_signed(self, s: dict[str, Any], plan: Tensor, backward: Tensor) -> Tensor:
+        """:meth:`_pursuit` for a task that reverses: where ``backward [N]`` (the speed set-point
+        is negative) the laws pursue the goal line in the direction of motion, backwards.
+
+        With ``sigma = -1`` backwards (``+1`` forwards), both laws aim ``look-ahead`` metres from
+        their point's projection in the direction of motion (``along + sigma x look-ahead`` on the
+        goal line) and pure pursuit runs on the motion heading (``heading + pi`` backwards); the
+        signed path curvature (per metre of signed travel, as ``tan(delta) / L_t``) is ``sigma``
+        times pure pursuit's. Backwards the trailer axle leads: its pursuit gives the trailer
+        curvature ``k_t``, hence ``phi_d = asin(-k_t L_ka)`` (limited to ``asin(0.5)`` backwards,
+        where the hitch is unstable), and the tractor curvature makes the articulation follow it
+        at ``gain`` per metre driven, ``d phi / d|s| = gain (phi_d - phi)``, by inverting the hitch
+        kinematics (``d phi / ds = -k (1 + a / L_ka cos phi) - sin(phi) / L_ka``, ``s`` signed
+        travel). Backwards only the trailer law is used (steering the tractor onto the line
+        folds the trailer); forwards it is :meth:`_pursuit`'s planned blend.
+        """
+        pose, goal, p = s["pose"], s["goal"], s["params"]
+        theta, phi = pose[:, 2], pose[:, 3]
+        psi = theta + phi
+        a, l_ka = p["kingpin_offset"], p["trailer_wheelbase"]
+        king = pose[:, :2] - a[:, None] * torch.stack((theta.cos(), theta.sin()), -1)
+        axle = king - l_ka[:, None] * torch.stack((psi.cos(), psi.sin()), -1)
+        d = torch.stack((goal[:, 2].cos(), goal[:, 2].sin()), -1)
+        sigma = torch.where(backward, -1.0, 1.0)
+        turn = torch.where(backward, math.pi, 0.0)
+
+        def pursue(point: Tensor, heading: Tensor) -> Tensor:
+            along = ((point - goal[:, :2]) * d).sum(-1)
+            vec = goal[:, :2] + (along + sigma * plan[:, 1])[:, None] * d - point
+            alpha = torch.atan2(vec[:, 1], vec[:, 0]) - heading - turn
+            return sigma * 2.0 * torch.sin(alpha) / vec.norm(dim=-1).clamp_min(1e-3)
+
+        k_tractor = pursue(pose[:, :2], theta)
+        limit = torch.where(backward, 0.5, 0.95)
+        phi_d = torch.asin(torch.maximum(torch.minimum(-pursue(axle, psi) * l_ka, limit), -limit))
+        phi_rate = sigma * plan[:, 2] * (phi_d - phi)  # per metre of signed travel
+        k_trailer = -(phi_rate + phi.sin() / l_ka) / (1.0 + a / l_ka * phi.cos())
+        w = torch.where(backward, 1.0, plan[:, 3])
+        return torch.atan(((1.0 - w) * k_tractor + w * k_trailer) * p["wheelbase"])
+
     def _step_fn(
         self,
         s: dict[str, Any],
@@ -321,24 +366,31 @@ class Planner:
         and the arrival cap of ``plan [N, 5]``), track them, advance, test the outcome and update
         the bookkeeping ``acc``."""
         p = s["params"]
-        if self.config.steer_axis == "distance":
-            steer_ref = _interp(knots, acc["travel"] / span)
-        else:
-            steer_ref = ref[:, 0]
-        if self.config.pursuit != "none":  # (switch = inf otherwise)
-            steer_ref = torch.where(acc["travel"] >= plan[:, 0], self._pursuit(s, plan), steer_ref)
         speed_ref = (
             ref[:, 1] if self.config.speed_axis == "time" else _interp(vknots, acc["travel"] / span)
         )
         if self.config.arrival:
             dist = (s["goal"][:, :2] - s["pose"][:, :2]).norm(dim=-1)
             decel = self.config.brake * p["max_accel"]
-            speed_ref = torch.minimum(speed_ref, (plan[:, 4].square() + 2.0 * decel * dist).sqrt())
+            cap = (plan[:, 4].square() + 2.0 * decel * dist).sqrt()
+            speed_ref = torch.minimum(speed_ref, cap)
+            if self.task.reverse:  # the same cap on the reverse speed
+                speed_ref = torch.maximum(speed_ref, -cap)
+        if self.config.steer_axis == "distance":
+            steer_ref = _interp(knots, acc["travel"] / span)
+        else:
+            steer_ref = ref[:, 0]
+        if self.config.pursuit != "none":  # (switch = inf otherwise)
+            if self.task.reverse:
+                law = self._pursuit_signed(s, plan, speed_ref < 0)
+            else:
+                law = self._pursuit(s, plan)
+            steer_ref = torch.where(acc["travel"] >= plan[:, 0], law, steer_ref)
         lon = self._track(
             speed_ref,
             [s[k] for k in ("speed", "accel", "jerk")],
             [p[k] for k in self.lon_limits],
-            self.task.control.min_speed,
+            self.task.control.speed_floor(p),
             self.lon_order,
         )
         lat = self._track(
@@ -367,14 +419,24 @@ class Planner:
         return new, action, out
 
     # ------------------------------------------------------------------ one batch rollout
+    def _speed_map(self, u: Tensor, params: dict[str, Tensor]) -> Tensor:
+        """Speed set-points [m/s] of speed-knot values ``u [N, M]`` in ``[-1, 1]``.
+
+        Forward task: affine, ``-1 -> speed floor (min_speed)``, ``+1 -> max_speed``. A task that
+        reverses: piecewise linear through standstill at 0, ``-1 -> -max_reverse_speed``, ``+1 ->
+        max_speed`` (half the sampled knots drive backwards)."""
+        v_hi = params["max_speed"][:, None]
+        if self.task.reverse:
+            return torch.where(u < 0, u * params["max_reverse_speed"][:, None], u * v_hi)
+        v_lo = self.task.control.speed_floor(params)[:, None]
+        return v_lo + 0.5 * (u + 1.0) * (v_hi - v_lo)
+
     def _references(self, x: Tensor, params: dict[str, Tensor]) -> Tensor:
         """``[T, N, 2]`` steering [rad] and speed [m/s] set-points of candidates ``x [N, P]``."""
         ks = self.config.steer_knots
         kv = ks + self.config.speed_knots
         steer = x[:, :ks] @ self.w_steer.T * params["max_steer"][:, None]
-        v_lo = self.task.control.min_speed
-        frac = 0.5 * (x[:, ks:kv] @ self.w_speed.T + 1.0)
-        speed = v_lo + frac * (params["max_speed"][:, None] - v_lo)
+        speed = self._speed_map(x[:, ks:kv] @ self.w_speed.T, params)
         return torch.stack((steer, speed), -1).transpose(0, 1).contiguous()
 
     def _extras(self, x: Tensor, params: dict[str, Tensor], span: Tensor) -> Tensor:
@@ -411,12 +473,11 @@ class Planner:
             actions ``[T, N, 2]`` (rows after the end of an episode are meaningless).
         """
         n, dev = x.shape[0], self.device
-        s = _flat(start, self.state_keys)
+        s = _flat(start, self.state_keys, self.task.reverse)
         refs = self._references(x, s["params"])
         ks, kv = self.config.steer_knots, self.config.steer_knots + self.config.speed_knots
         knots = x[:, :ks] * s["params"]["max_steer"][:, None]
-        v_lo = self.task.control.min_speed
-        vknots = v_lo + 0.5 * (x[:, ks:kv] + 1.0) * (s["params"]["max_speed"][:, None] - v_lo)
+        vknots = self._speed_map(x[:, ks:kv], s["params"])
         start_goal = (s["goal"][:, :2] - s["pose"][:, :2]).norm(dim=-1)
         span = self.config.path_stretch * start_goal + self.config.path_extra
         plan = self._extras(x, s["params"], span)
@@ -664,7 +725,7 @@ def plan_states(
     results["attempts"] = plan["attempts"]
     results["rollouts"] = plan["rollouts"]
     results["plan_seconds"] = plan["seconds"]
-    results["params"] = {k: states["params", k].cpu() for k in PARAM_KEYS}
+    results["params"] = {k: states["params", k].cpu() for k in _param_keys(planner.task.reverse)}
     # The scene keys of evaluate_policy's results, flat and in its dtypes.
     results["trailer_length"] = trailer_length(results["params"])
     if "route" in states.keys():
