@@ -163,7 +163,14 @@ def run(args: argparse.Namespace) -> dict:
     seconds = time.perf_counter() - t0
     n = int(results["success"].numel())
     summary = summarize(results, errors)
-    rows = summarize_by_category(results, episode_bins(category_info(results)))
+    info = category_info(results)
+    # the per-category table needs the intersection generator's route keys; a task without
+    # them (a test task, a task with its own categories) reports the totals only
+    rows = (
+        summarize_by_category(results, episode_bins(info))
+        if all(k in info for k in ROUTE_KEYS)
+        else []
+    )
     steps = results["rollouts"] * env_cfg.max_steps
     out = {
         "difficulty": args.difficulty,
@@ -240,7 +247,8 @@ def print_report(s: dict, errors, rows: list[dict]) -> None:
     for q in errors:
         key = f"{q.key}_{q.shown_unit}"
         print(f"{f'{q.key} [{q.shown_unit}]':<30}{s[f'{key}_mean']:>10.3f}{s[f'{key}_p95']:>10.3f}")
-    print(format_category_table(rows))
+    if rows:
+        print(format_category_table(rows))
     print(
         f"{s['seconds']:.1f} s in all ({s['plan_seconds']:.1f} s planning, {s['rollouts']} "
         f"rollouts, up to {s['max_truck_steps_per_s']:.0f} truck-steps/s, {s['threads']} "

@@ -11,7 +11,8 @@ Parameterisation (``5 + steer_knots + speed_knots`` numbers in ``[-1, 1]`` per c
     * ``steer_knots`` steering set-points (fractions of ``max_steer``) spread over the distance
       driven, ``0 .. path_stretch x start-goal distance + path_extra`` (``steer_axis=distance``;
       the path then hardly depends on the speed), or over the horizon's steps;
-    * ``speed_knots`` speed set-points (``-1`` = ``min_speed``, ``+1`` = ``max_speed``) over the
+    * ``speed_knots`` speed set-points (``-1`` = ``min_speed``, ``+1`` = ``max_speed``; reversing
+      below) over the
       horizon's steps (``speed_axis``), linearly interpolated like the steering;
     * a switch distance after which the steering set-point comes from a pursuit of the goal line
       instead (``pursuit``: pure pursuit of the tractor rear axle, pure pursuit of the trailer axle
@@ -21,6 +22,17 @@ Parameterisation (``5 + steer_knots + speed_knots`` numbers in ``[-1, 1]`` per c
     * an arrival speed: the speed set-point is capped by a braking profile to it at the goal
       (``arrival``): at 0.1 s per step a truck passing the goal faster than about 2 x 0.47 m /
       0.1 s can step over the tolerance circle.
+
+    Reversing (a task with ``Task.reverse``): the speed knots map piecewise linearly through
+    standstill, ``-1 = -max_reverse_speed``, ``0 = 0``, ``+1 = max_speed`` (so a sampled plan
+    drives forwards, backwards, or both in turn, e.g. a three-point turn), the arrival cap
+    bounds the reverse speed too and brakes over the task's own position error (its first error
+    in metres: for a dock task, the trailer's rear to the dock), and the pursuit is direction
+    aware (:meth:`Planner._pursuit_signed`): while the speed set-point is negative it steers
+    the trailer axle, which then leads, onto the goal line through the articulation cascade;
+    forwards it is the planned blend. The goal line is the line through the goal position
+    along the goal heading, so any goal point on the trailer's final axis works. Forward-only
+    tasks are planned exactly as before (bit-identical).
 
     At every step a deadbeat tracker turns the two set-points into the action the control mode
     expects (default: acceleration and steering rate), clamped to ``[-1, 1]``, so the steering-
@@ -146,7 +158,12 @@ class PlannerConfig:
         0.5, lo=0.0, lo_open=True, hi=1.0, unit="-", doc="arrival: deceleration / max_accel"
     )
     speed_mean: float = param(
-        0.0, lo=-1.0, hi=1.0, unit="-", doc="initial mean of the speed knots (-1 min, +1 max speed)"
+        0.0,
+        lo=-1.0,
+        hi=1.0,
+        unit="-",
+        doc="initial mean of the speed knots (-1 min, +1 max speed; a task that reverses: "
+        "-1 -max_reverse_speed, 0 standstill)",
     )
     init_std: float = param(0.6, lo=0.0, lo_open=True, hi=10.0, unit="-", doc="initial knot std")
     min_std: float = param(0.002, lo=0.0, hi=10.0, unit="-", doc="floor of the knot std")
@@ -247,6 +264,11 @@ class Planner:
         self.lat_limits = [lim for _, lim in MODE_TABLE["lateral"].values()]
         self.state_keys = ("pose", "goal", "segments", "mask", "step_count", *CONTROL_KEYS)
         self.state_keys += self.task.error_keys
+        #: the task's first position error [m]: the distance the arrival cap brakes over in a
+        #: task that reverses (forward tasks: the tractor rear axle's distance to the goal)
+        self.pos_key = next((q.key for q in self.task.error_quantities if q.unit == "m"), None)
+        if self.task.reverse and self.config.arrival and self.pos_key is None:
+            raise ConfigError("planner.arrival needs a position error [m] in the task's errors")
         self._step = torch.compile(self._step_fn, dynamic=False) if pc.compile else self._step_fn
 
     # ------------------------------------------------------------------ one step
@@ -314,8 +336,9 @@ class Planner:
         is negative) the laws pursue the goal line in the direction of motion, backwards.
 
         With ``sigma = -1`` backwards (``+1`` forwards), both laws aim ``look-ahead`` metres from
-        their point's projection in the direction of motion (``along + sigma x look-ahead`` on the
-        goal line) and pure pursuit runs on the motion heading (``heading + pi`` backwards); the
+        their point's projection on the goal line (the line through the goal along its heading),
+        in the direction the point moves along it, and pure pursuit runs on the motion heading
+        (``heading + pi`` backwards); the
         signed path curvature (per metre of signed travel, as ``tan(delta) / L_t``) is ``sigma``
         times pure pursuit's. Backwards the trailer axle leads: its pursuit gives the trailer
         curvature ``k_t``, hence ``phi_d = asin(-k_t L_ka)`` (limited to ``asin(0.5)`` backwards,
@@ -337,7 +360,10 @@ class Planner:
 
         def pursue(point: Tensor, heading: Tensor) -> Tensor:
             along = ((point - goal[:, :2]) * d).sum(-1)
-            vec = goal[:, :2] + (along + sigma * plan[:, 1])[:, None] * d - point
+            # look ahead along the line in the direction the point moves (either goal heading)
+            ahead = sigma * (heading.cos() * d[:, 0] + heading.sin() * d[:, 1])
+            step = torch.where(ahead < 0, -plan[:, 1], plan[:, 1])
+            vec = goal[:, :2] + (along + step)[:, None] * d - point
             alpha = torch.atan2(vec[:, 1], vec[:, 0]) - heading - turn
             return sigma * 2.0 * torch.sin(alpha) / vec.norm(dim=-1).clamp_min(1e-3)
 
@@ -370,7 +396,10 @@ class Planner:
             ref[:, 1] if self.config.speed_axis == "time" else _interp(vknots, acc["travel"] / span)
         )
         if self.config.arrival:
-            dist = (s["goal"][:, :2] - s["pose"][:, :2]).norm(dim=-1)
+            if self.task.reverse:  # the task's own position error (e.g. of the trailer's rear)
+                dist = s[self.pos_key]
+            else:
+                dist = (s["goal"][:, :2] - s["pose"][:, :2]).norm(dim=-1)
             decel = self.config.brake * p["max_accel"]
             cap = (plan[:, 4].square() + 2.0 * decel * dist).sqrt()
             speed_ref = torch.minimum(speed_ref, cap)
