@@ -31,7 +31,7 @@ from typing import Any, NoReturn
 import torch
 import yaml
 
-from truckrl.agent.categories import episode_bins, format_category_table, summarize_by_category
+from truckrl.agent.categories import format_category_table, summarize_by_category, task_bins
 from truckrl.agent.planner import PlannerConfig, category_info, plan_episodes
 from truckrl.agent.rollout import summarize
 from truckrl.cli import git_revision
@@ -163,14 +163,9 @@ def run(args: argparse.Namespace) -> dict:
     seconds = time.perf_counter() - t0
     n = int(results["success"].numel())
     summary = summarize(results, errors)
-    info = category_info(results)
-    # the per-category table needs the intersection generator's route keys; a task without
-    # them (a test task, a task with its own categories) reports the totals only
-    rows = (
-        summarize_by_category(results, episode_bins(info))
-        if all(k in info for k in ROUTE_KEYS)
-        else []
-    )
+    # the task's bins (intersection: route, turn, ...; others: their category_dims), if any
+    bins = task_bins(env_cfg.task.name, category_info(results))
+    rows = summarize_by_category(results, bins, errors) if bins else []
     steps = results["rollouts"] * env_cfg.max_steps
     out = {
         "difficulty": args.difficulty,
@@ -222,6 +217,8 @@ def _per_episode(results: dict, errors) -> list[dict]:
             v = results[k][j].item()
             e[k] = v if not isinstance(v, float) or math.isfinite(v) else None
         e["route"] = {k: results[k][j].item() for k in ROUTE_KEYS if k in results}
+        if "scene_info_keys" in results:
+            e["scene_info"] = {k: results[k][j].item() for k in results["scene_info_keys"]}
         e["params"] = {k: v[j].item() for k, v in results["params"].items()}
         e["actions"] = results["actions"][j, : int(results["length"][j])].tolist()
         eps.append(e)

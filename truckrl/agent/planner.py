@@ -761,6 +761,10 @@ def plan_states(
         for k in ROUTE_KEYS:
             v = states["route", k].cpu()
             results[k] = v.long() if k == "route" else v
+    if "scene_info" in states.keys():  # other tasks' scene metadata (evaluation bins by it)
+        results["scene_info_keys"] = tuple(states["scene_info"].keys())
+        for k in results["scene_info_keys"]:
+            results[k] = states["scene_info", k].cpu()
     task = planner.task
     tol_pos, tol_ang = task.tolerances(torch.tensor([float(difficulty)]))
     tolerance = (float(tol_pos[0]), math.degrees(float(tol_ang[0])))
@@ -821,5 +825,8 @@ def plan_episodes(
 
 
 def category_info(results: dict[str, Any]) -> dict[str, Tensor]:
-    """Per-episode inputs of :func:`truckrl.agent.categories.episode_bins` from plan results."""
-    return {k: results[k] for k in ("trailer_length", *ROUTE_KEYS) if k in results}
+    """Per-episode inputs of :func:`truckrl.agent.categories.task_bins` from plan results: the
+    trailer length and the scene metadata (intersection: the route keys; other tasks: their
+    ``scene_info`` entries)."""
+    keys = ("trailer_length", *ROUTE_KEYS, *results.get("scene_info_keys", ()))
+    return {k: results[k] for k in keys if k in results}
