@@ -143,7 +143,8 @@ def run(args: argparse.Namespace) -> dict:
     if args.route:
         from truckrl.agent.planner import held_out_states
 
-        route = held_out_states(env_cfg, args.episodes, args.seed, args.device)["route", "route"]
+        route = held_out_states(env_cfg, args.episodes, args.seed, args.device, args.difficulty)
+        route = route["route", "route"]
         wanted = torch.tensor([ROUTES[r] for r in args.route])
         indices = torch.isin(route.cpu().long(), wanted).nonzero().squeeze(-1)
         if indices.numel() == 0:

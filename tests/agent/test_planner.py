@@ -132,7 +132,7 @@ def _backed_up(env: EnvConfig, res) -> torch.Tensor:
     from truckrl.agent.planner import held_out_states
     from truckrl.env import TruckEnv
 
-    states = held_out_states(env, int(res["scene_index"].numel()), 0)
+    states = held_out_states(env, int(res["scene_index"].numel()), 0, difficulty=4.0)
     n = states.batch_size[0]
     sim = TruckEnv(num_envs=n, config=env, seed=0)
     sim.set_difficulty(4.0)
@@ -177,3 +177,21 @@ def test_reverses_to_a_goal_behind_and_sideways(episodes, need):
     lowest, along = _backed_up(env, res)
     ok = res["success"]
     assert (lowest[ok] < -0.5).all() and (along[ok] < -10.0).all()
+
+
+def test_planned_scenes_are_evaluate_policys_at_the_difficulty_for_a_start_curriculum():
+    # the dock task moves its starts by the difficulty (Task.on_reset): the planner must plan
+    # the scenes evaluate_policy scores at that difficulty, not the difficulty-0 ones
+    env = EnvConfig(max_steps=4, task={"name": "dock"})
+    actor = TensorDictModule(
+        lambda obs: torch.zeros(obs.shape[0], 2), in_keys=["observation"], out_keys=["action"]
+    )
+    cfg = {**FAST, "samples": 4, "iterations": 1, "attempts": 1, "scenes_per_batch": 6}
+    kinds = []
+    for d in (0.0, 8.0):
+        ev, _, _ = evaluate_policy(actor, env, d, episodes=6, seed=3)
+        res, _, _ = plan_episodes(env, d, episodes=6, seed=3, config=cfg)
+        for k in res["scene_info_keys"]:
+            assert torch.equal(res[k], ev[k]), (d, k)
+        kinds.append(res["start_kind"])
+    assert not torch.equal(kinds[0], kinds[1])  # the difficulty did move starts

@@ -776,10 +776,15 @@ def held_out_states(
     episodes: int,
     seed: int,
     device: torch.device | str = "cpu",
+    difficulty: float | None = None,
 ) -> TensorDict:
-    """The start states of the ``episodes`` scenes that ``evaluate_policy`` draws for ``seed``."""
+    """The start states of the ``episodes`` scenes that ``evaluate_policy`` draws for ``seed``
+    (at ``difficulty``, default the env's starting one: a task with a start curriculum,
+    ``Task.on_reset``, places its starts by the difficulty, as ``evaluate_policy`` does)."""
     cfg = dataclasses.replace(build(EnvConfig, env_cfg, "env"), compile=False)
     env = TruckEnv(num_envs=episodes, device=device, config=cfg, seed=seed)
+    if difficulty is not None:
+        env.set_difficulty(difficulty)
     env.reset()
     states = env.get_state()
     env.close()
@@ -813,7 +818,7 @@ def plan_episodes(
     """
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ConfigError(f"episodes = {episodes!r} must be a whole number >= 1")
-    states = held_out_states(env_cfg, episodes, seed, device)
+    states = held_out_states(env_cfg, episodes, seed, device, difficulty)
     index = torch.arange(episodes) if indices is None else torch.as_tensor(indices).long()
     if index.numel() and (index.min() < 0 or index.max() >= episodes):
         raise ConfigError(f"indices must lie in [0, {episodes - 1}]")
