@@ -26,8 +26,9 @@ Parameterisation (``5 + steer_knots + speed_knots`` numbers in ``[-1, 1]`` per c
     Reversing (a task with ``Task.reverse``): the speed knots map piecewise linearly through
     standstill, ``-1 = -max_reverse_speed``, ``0 = 0``, ``+1 = max_speed`` (so a sampled plan
     drives forwards, backwards, or both in turn, e.g. a three-point turn), the arrival cap
-    bounds the reverse speed too and brakes over the task's own position error (its first error
-    in metres: for a dock task, the trailer's rear to the dock), and the pursuit is direction
+    bounds the reverse speed too and brakes over the tractor's distance to the goal measured
+    mostly along the goal line (:meth:`Planner._arrival_distance`; with ``arrival_speed`` near
+    0 the truck comes to rest at the goal, as docking needs), and the pursuit is direction
     aware (:meth:`Planner._pursuit_signed`): while the speed set-point is negative it steers
     the trailer axle, which then leads, onto the goal line through the articulation cascade;
     forwards it is the planned blend. The goal line is the line through the goal position
@@ -154,6 +155,14 @@ class PlannerConfig:
     arrival_speed: tuple[float, float] = param(
         (0.05, 1.0), lo=0.0, hi=1.0, unit="-", doc="arrival: range of the planned speed / max_speed"
     )
+    arrival_slack: float = param(
+        0.5,
+        lo=0.0,
+        hi=100.0,
+        unit="m",
+        doc="arrival, a task that reverses: offset across the goal line the braking distance "
+        "ignores",
+    )
     brake: float = param(
         0.5, lo=0.0, lo_open=True, hi=1.0, unit="-", doc="arrival: deceleration / max_accel"
     )
@@ -264,11 +273,6 @@ class Planner:
         self.lat_limits = [lim for _, lim in MODE_TABLE["lateral"].values()]
         self.state_keys = ("pose", "goal", "segments", "mask", "step_count", *CONTROL_KEYS)
         self.state_keys += self.task.error_keys
-        #: the task's first position error [m]: the distance the arrival cap brakes over in a
-        #: task that reverses (forward tasks: the tractor rear axle's distance to the goal)
-        self.pos_key = next((q.key for q in self.task.error_quantities if q.unit == "m"), None)
-        if self.task.reverse and self.config.arrival and self.pos_key is None:
-            raise ConfigError("planner.arrival needs a position error [m] in the task's errors")
         self._step = torch.compile(self._step_fn, dynamic=False) if pc.compile else self._step_fn
 
     # ------------------------------------------------------------------ one step
@@ -330,6 +334,19 @@ class Planner:
         k_trailer = -(phi_rate + phi.sin() / l_ka) / (1.0 + a / l_ka * phi.cos())
         w = plan[:, 3]
         return torch.atan(((1.0 - w) * k_tractor + w * k_trailer) * p["wheelbase"])
+
+    def _arrival_distance(self, s: dict[str, Any]) -> Tensor:
+        """Distance [m] the arrival cap brakes over in a task that reverses: from the tractor
+        rear axle to the goal (a rear-axle pose), ignoring the first ``arrival_slack`` metres
+        across the goal line, ``sqrt(along^2 + max(|across| - slack, 0)^2)``. A truck that
+        arrives slightly off the line still brakes to the arrival speed at the goal (a task
+        whose success needs the truck at rest, e.g. docking) instead of passing it at the
+        speed that the residual offset allows."""
+        goal, rel = s["goal"], s["pose"][:, :2] - s["goal"][:, :2]
+        c, sn = goal[:, 2].cos(), goal[:, 2].sin()
+        along = rel[:, 0] * c + rel[:, 1] * sn
+        across = (-rel[:, 0] * sn + rel[:, 1] * c).abs() - self.config.arrival_slack
+        return torch.hypot(along, across.clamp_min(0.0))
 
     def _pursuit_signed(self, s: dict[str, Any], plan: Tensor, backward: Tensor) -> Tensor:
         """:meth:`_pursuit` for a task that reverses: where ``backward [N]`` (the speed set-point
@@ -396,8 +413,8 @@ class Planner:
             ref[:, 1] if self.config.speed_axis == "time" else _interp(vknots, acc["travel"] / span)
         )
         if self.config.arrival:
-            if self.task.reverse:  # the task's own position error (e.g. of the trailer's rear)
-                dist = s[self.pos_key]
+            if self.task.reverse:
+                dist = self._arrival_distance(s)
             else:
                 dist = (s["goal"][:, :2] - s["pose"][:, :2]).norm(dim=-1)
             decel = self.config.brake * p["max_accel"]
