@@ -353,3 +353,96 @@ def test_pygame_window_runs_with_posted_keys(monkeypatch):
     assert runner.paused and runner.env.get_difficulty() == 0.5
     assert np.array_equal(shown, runner.frame)
     assert float(runner.env.get_state()[0]["speed"]) > 0
+
+
+# ---------------------------------------------------------------------------------- reversing
+REVERSE_TASK = {"name": "tests.task.reverse_reach_task"}
+
+
+def _hud_text(runner: Runner) -> list[str]:
+    return [x if isinstance(x, str) else x[0] for x in runner.hud(runner.env.get_state()[0])]
+
+
+def _gear(runner: Runner) -> str:
+    line = next(x for x in _hud_text(runner) if x.startswith("speed"))
+    return line.split("gear")[1].strip()
+
+
+def test_s_at_rest_reverses_and_w_brakes_then_drives_forward(tmp_path):
+    # accel mode (default): full S = -max_accel every step, down to -max_reverse_speed; then
+    # full W = +max_accel through 0 into forward driving
+    runner, _, states = drive(tmp_path, "S 30\nW 30\n", EnvConfig(task=REVERSE_TASK), difficulty=5)
+    p = states[0]["params"]
+    a, vr, vmax = (float(p[k]) for k in ("max_accel", "max_reverse_speed", "max_speed"))
+    v = [float(s["speed"]) for s in states]
+    for k in range(31):
+        assert v[k] == pytest.approx(max(-k * a * DT, -vr), abs=1e-4), k
+    assert v[30] == pytest.approx(-vr, abs=1e-5)  # at the reverse limit, not below
+    for j in range(31):
+        assert v[30 + j] == pytest.approx(min(-vr + j * a * DT, vmax), abs=1e-4), j
+    assert v[-1] > 0
+    # backing: the rear axle moved against its heading while the speed was negative
+    x0, x30 = states[0]["pose"], states[30]["pose"]
+    heading = torch.stack((x0[2].cos(), x0[2].sin()))
+    assert float(((x30[:2] - x0[:2]) * heading).sum()) < -1.0
+    assert _gear(runner) == "D"
+    hud = " ".join(_hud_text(runner))
+    assert "brake, reverse" in hud
+
+
+def test_gear_shows_r_while_reversing_and_n_at_rest(tmp_path):
+    runner, _, _ = drive(tmp_path, "S 5\n", EnvConfig(task=REVERSE_TASK), difficulty=5)
+    assert float(runner.env.get_state()[0]["speed"]) < 0 and _gear(runner) == "R"
+    runner.restart()
+    assert _gear(runner) == "N"
+
+
+def test_speed_mode_setpoint_goes_below_zero_in_a_reversing_task(tmp_path):
+    # speed mode maps [-1, 1] onto [-max_reverse_speed, max_speed]; S moves the set-point down
+    # by setpoint_rate * dt = 0.1 action units per step, i.e. 0.05 (vmax + vr) m/s
+    cfg = EnvConfig(control=ControlConfig("speed", "angle"), task=REVERSE_TASK)
+    runner, _, states = drive(tmp_path, "S 40\n", cfg, difficulty=5)
+    p = states[0]["params"]
+    vr, vmax = float(p["max_reverse_speed"]), float(p["max_speed"])
+    v = [float(s["speed"]) for s in states]
+    for k in range(41):
+        assert v[k] == pytest.approx(max(-k * 0.05 * (vmax + vr), -vr), abs=1e-4), k
+    assert v[-1] == pytest.approx(-vr, abs=1e-5) and _gear(runner) == "R"
+
+
+@pytest.mark.parametrize("control", [("accel", "rate"), ("speed", "angle")])
+def test_forward_task_s_at_rest_stays_at_zero(tmp_path, control):
+    runner, _, states = drive(
+        tmp_path, "S 5\nW 3\nS 10\n", EnvConfig(control=ControlConfig(*control))
+    )
+    v = [float(s["speed"]) for s in states]
+    assert min(v) == 0.0 and v[5] == 0.0 and v[-1] == 0.0 and max(v) > 0
+    assert _gear(runner) == "N"
+    assert "brake, reverse" not in " ".join(_hud_text(runner))
+
+
+def test_pygame_window_reverses_with_s_held(monkeypatch):
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    pygame = pytest.importorskip("pygame")
+    from truckrl.viz.window import Window
+
+    pc = PlayConfig(view=SMALL_VIEW, env=EnvConfig(task=REVERSE_TASK), difficulty=5)
+    runner, _, _, _ = build_runner(pc)
+    calls = []
+
+    def key_state():  # S held; Esc posted at poll 7 is read at poll 8
+        calls.append(1)
+        if len(calls) == 7:
+            pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.K_ESCAPE, mod=0))
+        return {"s"}
+
+    window = Window(runner.frame.shape[1::-1], key_state=key_state)
+    try:
+        result = run_loop(runner, window, window=window, fps=1000.0)
+    finally:
+        window.close()
+    assert len(calls) == 8 and result.steps == 7
+    s = runner.env.get_state()[0]
+    a, vr = float(s["params", "max_accel"]), float(s["params", "max_reverse_speed"])
+    assert float(s["speed"]) == pytest.approx(max(-7 * a * DT, -vr), abs=1e-4)
+    assert _gear(runner) == "R"

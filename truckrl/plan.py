@@ -31,7 +31,7 @@ from typing import Any, NoReturn
 import torch
 import yaml
 
-from truckrl.agent.categories import episode_bins, format_category_table, summarize_by_category
+from truckrl.agent.categories import format_category_table, summarize_by_category, task_bins
 from truckrl.agent.planner import PlannerConfig, category_info, plan_episodes
 from truckrl.agent.rollout import summarize
 from truckrl.cli import git_revision
@@ -143,7 +143,8 @@ def run(args: argparse.Namespace) -> dict:
     if args.route:
         from truckrl.agent.planner import held_out_states
 
-        route = held_out_states(env_cfg, args.episodes, args.seed, args.device)["route", "route"]
+        route = held_out_states(env_cfg, args.episodes, args.seed, args.device, args.difficulty)
+        route = route["route", "route"]
         wanted = torch.tensor([ROUTES[r] for r in args.route])
         indices = torch.isin(route.cpu().long(), wanted).nonzero().squeeze(-1)
         if indices.numel() == 0:
@@ -163,7 +164,9 @@ def run(args: argparse.Namespace) -> dict:
     seconds = time.perf_counter() - t0
     n = int(results["success"].numel())
     summary = summarize(results, errors)
-    rows = summarize_by_category(results, episode_bins(category_info(results)))
+    # the task's bins (intersection: route, turn, ...; others: their category_dims), if any
+    bins = task_bins(env_cfg.task.name, category_info(results))
+    rows = summarize_by_category(results, bins, errors) if bins else []
     steps = results["rollouts"] * env_cfg.max_steps
     out = {
         "difficulty": args.difficulty,
@@ -215,6 +218,8 @@ def _per_episode(results: dict, errors) -> list[dict]:
             v = results[k][j].item()
             e[k] = v if not isinstance(v, float) or math.isfinite(v) else None
         e["route"] = {k: results[k][j].item() for k in ROUTE_KEYS if k in results}
+        if "scene_info_keys" in results:
+            e["scene_info"] = {k: results[k][j].item() for k in results["scene_info_keys"]}
         e["params"] = {k: v[j].item() for k, v in results["params"].items()}
         e["actions"] = results["actions"][j, : int(results["length"][j])].tolist()
         eps.append(e)
@@ -240,7 +245,8 @@ def print_report(s: dict, errors, rows: list[dict]) -> None:
     for q in errors:
         key = f"{q.key}_{q.shown_unit}"
         print(f"{f'{q.key} [{q.shown_unit}]':<30}{s[f'{key}_mean']:>10.3f}{s[f'{key}_p95']:>10.3f}")
-    print(format_category_table(rows))
+    if rows:
+        print(format_category_table(rows))
     print(
         f"{s['seconds']:.1f} s in all ({s['plan_seconds']:.1f} s planning, {s['rollouts']} "
         f"rollouts, up to {s['max_truck_steps_per_s']:.0f} truck-steps/s, {s['threads']} "

@@ -45,6 +45,7 @@ from truckrl.viz.keyboard import (
     KeyInput,
     KeyMapper,
     command_for,
+    gear,
     key_help,
 )
 from truckrl.viz.panel import Line, with_banner, with_panel
@@ -73,17 +74,23 @@ class PolicySource:
             return self.actor(td.select("observation", "lidar"))["action"]
 
 
-def commanded_values(state: TensorDictBase, control: ControlConfig, min_speed: float):
+def commanded_values(state: TensorDictBase, control: ControlConfig, speed_floor: float):
     """The commanded quantities' present values on the action scale ``(u_lon, u_lat)``.
 
-    Inverse of the control's affine map (``u * max_q``; speed: ``[-1, 1] -> [min_speed,
+    Inverse of the control's affine map (``u * max_q``; speed: ``[-1, 1] -> [speed_floor,
     max_speed]``) applied to the truck's current speed/accel/jerk and steer/rate/accel.
+
+    Args:
+        state: one truck's state (scalar entries).
+        speed_floor: the truck's lower speed bound [m/s], ``task.control.speed_floor(params)``:
+            ``min_speed`` (0) for a forward-only task, ``-max_reverse_speed`` for one that
+            reverses.
     """
     p = state["params"]
     (lon_key, lon_limit), (lat_key, lat_limit) = commanded(control.longitudinal, control.lateral)
     if lon_key == "speed":
-        span = float(p[lon_limit]) - min_speed
-        u_lon = 2.0 * (float(state[lon_key]) - min_speed) / span - 1.0
+        span = float(p[lon_limit]) - speed_floor
+        u_lon = 2.0 * (float(state[lon_key]) - speed_floor) / span - 1.0
     else:
         u_lon = float(state[lon_key]) / float(p[lon_limit])
     u_lat = float(state[lat_key]) / float(p[lat_limit])
@@ -91,7 +98,11 @@ def commanded_values(state: TensorDictBase, control: ControlConfig, min_speed: f
 
 
 class KeyboardSource:
-    """Held keys -> action through :class:`KeyMapper` (set-points read from the truck's state)."""
+    """Held keys -> action through :class:`KeyMapper` (set-points read from the truck's state).
+
+    In a task that reverses, S keeps braking below 0 into reverse (the control's speed floor is
+    the truck's ``-max_reverse_speed``; :mod:`truckrl.viz.keyboard`).
+    """
 
     def __init__(self, env: TruckEnv, cfg: KeyboardConfig) -> None:
         self.env = env
@@ -99,7 +110,9 @@ class KeyboardSource:
 
     def __call__(self, td: TensorDictBase, held: frozenset[str]) -> Tensor:
         cfg = self.env.config
-        current = commanded_values(self.env.get_state()[0], cfg.control, cfg.vehicle.min_speed)
+        s = self.env.get_state()[0]
+        floor = float(self.env.task.control.speed_floor(s["params"]))
+        current = commanded_values(s, cfg.control, floor)
         action = self.mapper.action(held, current)
         return torch.tensor([action], dtype=torch.float32, device=self.env.device)
 
@@ -308,11 +321,12 @@ class Runner:
         cfg = self.env.config
         tol_pos, tol_ang = (float(x[0]) for x in self.env.tolerances())
         status = "WAITING" if self.waiting else "PAUSED" if self.paused else ""
+        v = float(s["speed"])
         lines: list[Line] = [
             (f"mode {self.mode.upper()}  {status}", _NOTE if status else COLORS["hud"]),
             f"control {cfg.control.longitudinal} / {cfg.control.lateral}",
             f"step {int(s['step_count'])}/{cfg.max_steps}   scenes {self.episodes_done}",
-            f"speed {float(s['speed']):6.2f} m/s  acc {float(s['accel']):+5.2f}",
+            f"speed {v:6.2f} m/s  acc {float(s['accel']):+5.2f}  gear {gear(v)}",
             f"steer {math.degrees(s['steer']):+6.1f} deg  rate {math.degrees(s['steer_rate']):+5.1f}",
             f"articulation {math.degrees(s['pose'][3]):+6.1f} deg",
             "",
@@ -338,7 +352,8 @@ class Runner:
         color = next((c for _, name, c in _OUTCOMES if name == self.outcome), COLORS["hud"])
         lines += [(f"outcome {self.outcome or 'driving'}", color), ""]
         if self.show_keys:
-            lines += [f"{k}\t{v}" for k, v in key_help("policy" in self.sources)]
+            help_rows = key_help("policy" in self.sources, self.env.task.reverse)
+            lines += [f"{k}\t{v}" for k, v in help_rows]
         return lines
 
 

@@ -11,7 +11,8 @@ Parameterisation (``5 + steer_knots + speed_knots`` numbers in ``[-1, 1]`` per c
     * ``steer_knots`` steering set-points (fractions of ``max_steer``) spread over the distance
       driven, ``0 .. path_stretch x start-goal distance + path_extra`` (``steer_axis=distance``;
       the path then hardly depends on the speed), or over the horizon's steps;
-    * ``speed_knots`` speed set-points (``-1`` = ``min_speed``, ``+1`` = ``max_speed``) over the
+    * ``speed_knots`` speed set-points (``-1`` = ``min_speed``, ``+1`` = ``max_speed``; reversing
+      below) over the
       horizon's steps (``speed_axis``), linearly interpolated like the steering;
     * a switch distance after which the steering set-point comes from a pursuit of the goal line
       instead (``pursuit``: pure pursuit of the tractor rear axle, pure pursuit of the trailer axle
@@ -21,6 +22,18 @@ Parameterisation (``5 + steer_knots + speed_knots`` numbers in ``[-1, 1]`` per c
     * an arrival speed: the speed set-point is capped by a braking profile to it at the goal
       (``arrival``): at 0.1 s per step a truck passing the goal faster than about 2 x 0.47 m /
       0.1 s can step over the tolerance circle.
+
+    Reversing (a task with ``Task.reverse``): the speed knots map piecewise linearly through
+    standstill, ``-1 = -max_reverse_speed``, ``0 = 0``, ``+1 = max_speed`` (so a sampled plan
+    drives forwards, backwards, or both in turn, e.g. a three-point turn), the arrival cap
+    bounds the reverse speed too and brakes over the tractor's distance to the goal measured
+    mostly along the goal line (:meth:`Planner._arrival_distance`; with ``arrival_speed`` near
+    0 the truck comes to rest at the goal, as docking needs), and the pursuit is direction
+    aware (:meth:`Planner._pursuit_signed`): while the speed set-point is negative it steers
+    the trailer axle, which then leads, onto the goal line through the articulation cascade;
+    forwards it is the planned blend. The goal line is the line through the goal position
+    along the goal heading, so any goal point on the trailer's final axis works. Forward-only
+    tasks are planned exactly as before (bit-identical).
 
     At every step a deadbeat tracker turns the two set-points into the action the control mode
     expects (default: acceleration and steering rate), clamped to ``[-1, 1]``, so the steering-
@@ -75,7 +88,7 @@ from truckrl.env import TruckEnv
 from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES, MODE_TABLE
 from truckrl.sim.scene import ROUTE_KEYS
 from truckrl.sim.validation import ConfigError, build, check_range, param, validate
-from truckrl.sim.vehicle import PARAM_KEYS
+from truckrl.sim.vehicle import PARAM_KEYS, REVERSE_KEYS
 from truckrl.task import MAX_DIFFICULTY, OUTCOMES, EnvConfig, Quantity, make_task, shown
 
 #: Cost subtracted from a successful candidate: every success ranks before every failure.
@@ -142,11 +155,24 @@ class PlannerConfig:
     arrival_speed: tuple[float, float] = param(
         (0.05, 1.0), lo=0.0, hi=1.0, unit="-", doc="arrival: range of the planned speed / max_speed"
     )
+    arrival_slack: float = param(
+        0.5,
+        lo=0.0,
+        hi=100.0,
+        unit="m",
+        doc="arrival, a task that reverses: offset across the goal line the braking distance "
+        "ignores",
+    )
     brake: float = param(
         0.5, lo=0.0, lo_open=True, hi=1.0, unit="-", doc="arrival: deceleration / max_accel"
     )
     speed_mean: float = param(
-        0.0, lo=-1.0, hi=1.0, unit="-", doc="initial mean of the speed knots (-1 min, +1 max speed)"
+        0.0,
+        lo=-1.0,
+        hi=1.0,
+        unit="-",
+        doc="initial mean of the speed knots (-1 min, +1 max speed; a task that reverses: "
+        "-1 -max_reverse_speed, 0 standstill)",
     )
     init_std: float = param(0.6, lo=0.0, lo_open=True, hi=10.0, unit="-", doc="initial knot std")
     min_std: float = param(0.002, lo=0.0, hi=10.0, unit="-", doc="floor of the knot std")
@@ -207,10 +233,15 @@ def _interp(knots: Tensor, frac: Tensor) -> Tensor:
     return lo + w * (hi - lo)
 
 
-def _flat(state: TensorDictBase, keys: Sequence[str]) -> dict[str, Any]:
+def _flat(state: TensorDictBase, keys: Sequence[str], reverse: bool = False) -> dict[str, Any]:
     out = {k: state[k] for k in keys}
-    out["params"] = {k: state["params", k] for k in PARAM_KEYS}
+    out["params"] = {k: state["params", k] for k in _param_keys(reverse)}
     return out
+
+
+def _param_keys(reverse: bool) -> tuple[str, ...]:
+    """The vehicle parameters of a task's trucks (:data:`REVERSE_KEYS` too if it reverses)."""
+    return (*PARAM_KEYS, *REVERSE_KEYS) if reverse else PARAM_KEYS
 
 
 class Planner:
@@ -304,6 +335,63 @@ class Planner:
         w = plan[:, 3]
         return torch.atan(((1.0 - w) * k_tractor + w * k_trailer) * p["wheelbase"])
 
+    def _arrival_distance(self, s: dict[str, Any]) -> Tensor:
+        """Distance [m] the arrival cap brakes over in a task that reverses: from the tractor
+        rear axle to the goal (a rear-axle pose), ignoring the first ``arrival_slack`` metres
+        across the goal line, ``sqrt(along^2 + max(|across| - slack, 0)^2)``. A truck that
+        arrives slightly off the line still brakes to the arrival speed at the goal (a task
+        whose success needs the truck at rest, e.g. docking) instead of passing it at the
+        speed that the residual offset allows."""
+        goal, rel = s["goal"], s["pose"][:, :2] - s["goal"][:, :2]
+        c, sn = goal[:, 2].cos(), goal[:, 2].sin()
+        along = rel[:, 0] * c + rel[:, 1] * sn
+        across = (-rel[:, 0] * sn + rel[:, 1] * c).abs() - self.config.arrival_slack
+        return torch.hypot(along, across.clamp_min(0.0))
+
+    def _pursuit_signed(self, s: dict[str, Any], plan: Tensor, backward: Tensor) -> Tensor:
+        """:meth:`_pursuit` for a task that reverses: where ``backward [N]`` (the speed set-point
+        is negative) the laws pursue the goal line in the direction of motion, backwards.
+
+        With ``sigma = -1`` backwards (``+1`` forwards), both laws aim ``look-ahead`` metres from
+        their point's projection on the goal line (the line through the goal along its heading),
+        in the direction the point moves along it, and pure pursuit runs on the motion heading
+        (``heading + pi`` backwards); the
+        signed path curvature (per metre of signed travel, as ``tan(delta) / L_t``) is ``sigma``
+        times pure pursuit's. Backwards the trailer axle leads: its pursuit gives the trailer
+        curvature ``k_t``, hence ``phi_d = asin(-k_t L_ka)`` (limited to ``asin(0.5)`` backwards,
+        where the hitch is unstable), and the tractor curvature makes the articulation follow it
+        at ``gain`` per metre driven, ``d phi / d|s| = gain (phi_d - phi)``, by inverting the hitch
+        kinematics (``d phi / ds = -k (1 + a / L_ka cos phi) - sin(phi) / L_ka``, ``s`` signed
+        travel). Backwards only the trailer law is used (steering the tractor onto the line
+        folds the trailer); forwards it is :meth:`_pursuit`'s planned blend.
+        """
+        pose, goal, p = s["pose"], s["goal"], s["params"]
+        theta, phi = pose[:, 2], pose[:, 3]
+        psi = theta + phi
+        a, l_ka = p["kingpin_offset"], p["trailer_wheelbase"]
+        king = pose[:, :2] - a[:, None] * torch.stack((theta.cos(), theta.sin()), -1)
+        axle = king - l_ka[:, None] * torch.stack((psi.cos(), psi.sin()), -1)
+        d = torch.stack((goal[:, 2].cos(), goal[:, 2].sin()), -1)
+        sigma = torch.where(backward, -1.0, 1.0)
+        turn = torch.where(backward, math.pi, 0.0)
+
+        def pursue(point: Tensor, heading: Tensor) -> Tensor:
+            along = ((point - goal[:, :2]) * d).sum(-1)
+            # look ahead along the line in the direction the point moves (either goal heading)
+            ahead = sigma * (heading.cos() * d[:, 0] + heading.sin() * d[:, 1])
+            step = torch.where(ahead < 0, -plan[:, 1], plan[:, 1])
+            vec = goal[:, :2] + (along + step)[:, None] * d - point
+            alpha = torch.atan2(vec[:, 1], vec[:, 0]) - heading - turn
+            return sigma * 2.0 * torch.sin(alpha) / vec.norm(dim=-1).clamp_min(1e-3)
+
+        k_tractor = pursue(pose[:, :2], theta)
+        limit = torch.where(backward, 0.5, 0.95)
+        phi_d = torch.asin(torch.maximum(torch.minimum(-pursue(axle, psi) * l_ka, limit), -limit))
+        phi_rate = sigma * plan[:, 2] * (phi_d - phi)  # per metre of signed travel
+        k_trailer = -(phi_rate + phi.sin() / l_ka) / (1.0 + a / l_ka * phi.cos())
+        w = torch.where(backward, 1.0, plan[:, 3])
+        return torch.atan(((1.0 - w) * k_tractor + w * k_trailer) * p["wheelbase"])
+
     def _step_fn(
         self,
         s: dict[str, Any],
@@ -321,24 +409,34 @@ class Planner:
         and the arrival cap of ``plan [N, 5]``), track them, advance, test the outcome and update
         the bookkeeping ``acc``."""
         p = s["params"]
+        speed_ref = (
+            ref[:, 1] if self.config.speed_axis == "time" else _interp(vknots, acc["travel"] / span)
+        )
+        if self.config.arrival:
+            if self.task.reverse:
+                dist = self._arrival_distance(s)
+            else:
+                dist = (s["goal"][:, :2] - s["pose"][:, :2]).norm(dim=-1)
+            decel = self.config.brake * p["max_accel"]
+            cap = (plan[:, 4].square() + 2.0 * decel * dist).sqrt()
+            speed_ref = torch.minimum(speed_ref, cap)
+            if self.task.reverse:  # the same cap on the reverse speed
+                speed_ref = torch.maximum(speed_ref, -cap)
         if self.config.steer_axis == "distance":
             steer_ref = _interp(knots, acc["travel"] / span)
         else:
             steer_ref = ref[:, 0]
         if self.config.pursuit != "none":  # (switch = inf otherwise)
-            steer_ref = torch.where(acc["travel"] >= plan[:, 0], self._pursuit(s, plan), steer_ref)
-        speed_ref = (
-            ref[:, 1] if self.config.speed_axis == "time" else _interp(vknots, acc["travel"] / span)
-        )
-        if self.config.arrival:
-            dist = (s["goal"][:, :2] - s["pose"][:, :2]).norm(dim=-1)
-            decel = self.config.brake * p["max_accel"]
-            speed_ref = torch.minimum(speed_ref, (plan[:, 4].square() + 2.0 * decel * dist).sqrt())
+            if self.task.reverse:
+                law = self._pursuit_signed(s, plan, speed_ref < 0)
+            else:
+                law = self._pursuit(s, plan)
+            steer_ref = torch.where(acc["travel"] >= plan[:, 0], law, steer_ref)
         lon = self._track(
             speed_ref,
             [s[k] for k in ("speed", "accel", "jerk")],
             [p[k] for k in self.lon_limits],
-            self.task.control.min_speed,
+            self.task.control.speed_floor(p),
             self.lon_order,
         )
         lat = self._track(
@@ -367,14 +465,24 @@ class Planner:
         return new, action, out
 
     # ------------------------------------------------------------------ one batch rollout
+    def _speed_map(self, u: Tensor, params: dict[str, Tensor]) -> Tensor:
+        """Speed set-points [m/s] of speed-knot values ``u [N, M]`` in ``[-1, 1]``.
+
+        Forward task: affine, ``-1 -> speed floor (min_speed)``, ``+1 -> max_speed``. A task that
+        reverses: piecewise linear through standstill at 0, ``-1 -> -max_reverse_speed``, ``+1 ->
+        max_speed`` (half the sampled knots drive backwards)."""
+        v_hi = params["max_speed"][:, None]
+        if self.task.reverse:
+            return torch.where(u < 0, u * params["max_reverse_speed"][:, None], u * v_hi)
+        v_lo = self.task.control.speed_floor(params)[:, None]
+        return v_lo + 0.5 * (u + 1.0) * (v_hi - v_lo)
+
     def _references(self, x: Tensor, params: dict[str, Tensor]) -> Tensor:
         """``[T, N, 2]`` steering [rad] and speed [m/s] set-points of candidates ``x [N, P]``."""
         ks = self.config.steer_knots
         kv = ks + self.config.speed_knots
         steer = x[:, :ks] @ self.w_steer.T * params["max_steer"][:, None]
-        v_lo = self.task.control.min_speed
-        frac = 0.5 * (x[:, ks:kv] @ self.w_speed.T + 1.0)
-        speed = v_lo + frac * (params["max_speed"][:, None] - v_lo)
+        speed = self._speed_map(x[:, ks:kv] @ self.w_speed.T, params)
         return torch.stack((steer, speed), -1).transpose(0, 1).contiguous()
 
     def _extras(self, x: Tensor, params: dict[str, Tensor], span: Tensor) -> Tensor:
@@ -411,12 +519,11 @@ class Planner:
             actions ``[T, N, 2]`` (rows after the end of an episode are meaningless).
         """
         n, dev = x.shape[0], self.device
-        s = _flat(start, self.state_keys)
+        s = _flat(start, self.state_keys, self.task.reverse)
         refs = self._references(x, s["params"])
         ks, kv = self.config.steer_knots, self.config.steer_knots + self.config.speed_knots
         knots = x[:, :ks] * s["params"]["max_steer"][:, None]
-        v_lo = self.task.control.min_speed
-        vknots = v_lo + 0.5 * (x[:, ks:kv] + 1.0) * (s["params"]["max_speed"][:, None] - v_lo)
+        vknots = self._speed_map(x[:, ks:kv], s["params"])
         start_goal = (s["goal"][:, :2] - s["pose"][:, :2]).norm(dim=-1)
         span = self.config.path_stretch * start_goal + self.config.path_extra
         plan = self._extras(x, s["params"], span)
@@ -664,13 +771,17 @@ def plan_states(
     results["attempts"] = plan["attempts"]
     results["rollouts"] = plan["rollouts"]
     results["plan_seconds"] = plan["seconds"]
-    results["params"] = {k: states["params", k].cpu() for k in PARAM_KEYS}
+    results["params"] = {k: states["params", k].cpu() for k in _param_keys(planner.task.reverse)}
     # The scene keys of evaluate_policy's results, flat and in its dtypes.
     results["trailer_length"] = trailer_length(results["params"])
     if "route" in states.keys():
         for k in ROUTE_KEYS:
             v = states["route", k].cpu()
             results[k] = v.long() if k == "route" else v
+    if "scene_info" in states.keys():  # other tasks' scene metadata (evaluation bins by it)
+        results["scene_info_keys"] = tuple(states["scene_info"].keys())
+        for k in results["scene_info_keys"]:
+            results[k] = states["scene_info", k].cpu()
     task = planner.task
     tol_pos, tol_ang = task.tolerances(torch.tensor([float(difficulty)]))
     tolerance = (float(tol_pos[0]), math.degrees(float(tol_ang[0])))
@@ -682,10 +793,15 @@ def held_out_states(
     episodes: int,
     seed: int,
     device: torch.device | str = "cpu",
+    difficulty: float | None = None,
 ) -> TensorDict:
-    """The start states of the ``episodes`` scenes that ``evaluate_policy`` draws for ``seed``."""
+    """The start states of the ``episodes`` scenes that ``evaluate_policy`` draws for ``seed``
+    (at ``difficulty``, default the env's starting one: a task with a start curriculum,
+    ``Task.on_reset``, places its starts by the difficulty, as ``evaluate_policy`` does)."""
     cfg = dataclasses.replace(build(EnvConfig, env_cfg, "env"), compile=False)
     env = TruckEnv(num_envs=episodes, device=device, config=cfg, seed=seed)
+    if difficulty is not None:
+        env.set_difficulty(difficulty)
     env.reset()
     states = env.get_state()
     env.close()
@@ -719,7 +835,7 @@ def plan_episodes(
     """
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ConfigError(f"episodes = {episodes!r} must be a whole number >= 1")
-    states = held_out_states(env_cfg, episodes, seed, device)
+    states = held_out_states(env_cfg, episodes, seed, device, difficulty)
     index = torch.arange(episodes) if indices is None else torch.as_tensor(indices).long()
     if index.numel() and (index.min() < 0 or index.max() >= episodes):
         raise ConfigError(f"indices must lie in [0, {episodes - 1}]")
@@ -731,5 +847,8 @@ def plan_episodes(
 
 
 def category_info(results: dict[str, Any]) -> dict[str, Tensor]:
-    """Per-episode inputs of :func:`truckrl.agent.categories.episode_bins` from plan results."""
-    return {k: results[k] for k in ("trailer_length", *ROUTE_KEYS) if k in results}
+    """Per-episode inputs of :func:`truckrl.agent.categories.task_bins` from plan results: the
+    trailer length and the scene metadata (intersection: the route keys; other tasks: their
+    ``scene_info`` entries)."""
+    keys = ("trailer_length", *ROUTE_KEYS, *results.get("scene_info_keys", ()))
+    return {k: results[k] for k in keys if k in results}

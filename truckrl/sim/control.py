@@ -17,7 +17,13 @@ with ``reverse=True``: ``[-max_reverse_speed, max_speed]``, per truck), every ot
 quantity in ``[-max_q, max_q]`` (``max_accel``, ``max_jerk``, ``max_steer``, ``max_steer_rate``,
 ``max_steer_accel``). An action component ``u`` is clamped to ``[-1, 1]`` and mapped affinely
 onto the commanded quantity's bounds (``u * max_q``; speed: ``-1 -> min_speed``,
-``+1 -> max_speed``). Per mode, one step of length ``dt`` does:
+``+1 -> max_speed``). Speed is signed: with ``reverse=True`` the speed mode maps ``-1 ->
+-max_reverse_speed`` and ``+1 -> max_speed``, still affinely, so ``u = 0`` is the middle of that
+range (a slow forward speed), not standstill, which is ``u = (max_reverse_speed - max_speed) /
+(max_reverse_speed + max_speed)``; the accel and jerk modes are unchanged (``u = 0`` holds the
+speed or acceleration; a negative acceleration at rest drives backwards). A forward-only control
+(``reverse=False``, ``min_speed = 0``) never goes below 0. Per mode, one step of length ``dt``
+does:
 
 =============  ===================================================================================
 mode           update (``'`` = new value, ``clip`` = clamp to that quantity's bounds)

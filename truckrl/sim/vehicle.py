@@ -14,7 +14,11 @@ Conventions (see the paper's Fig. 1):
 Randomized parameters: every key of :data:`PARAM_KEYS` is drawn uniformly from its ``[min, max]``
 per episode. Lengths are in metres, angles in radians, and the ``max_*`` limits bound speed [m/s],
 acceleration [m/s^2], jerk [m/s^3], steering rate [rad/s] and steering acceleration [rad/s^2]
-(all but speed symmetric in sign). ``min_speed`` [m/s] is fixed, not randomized. The defaults,
+(all but speed symmetric in sign). Speed is signed (``v < 0`` = reversing): forward-only tasks
+bound it below by the fixed ``min_speed`` [m/s] (0, not randomized); a task that reverses also
+draws :data:`REVERSE_KEYS` (``max_reverse_speed`` [m/s], the bound ``v >= -max_reverse_speed``)
+and its control (:class:`truckrl.sim.control.Control` with ``reverse=True``) lets the speed go
+down to it. The defaults,
 allowed ranges, units and meanings live in the fields of :class:`VehicleConfig` only; ``python -m
 truckrl.configs`` prints them as a table.
 
@@ -25,7 +29,14 @@ Kinematics (:func:`kinematics_step`): kinematic bicycle for the tractor plus a t
 
 with ``v`` the rear-axle speed [m/s] and ``delta`` the steering angle [rad]. With ``a_tk``
 positive behind the rear axle this is exact no-slip hitch kinematics (the trailer axle moves
-along the trailer heading), not a small-angle approximation.
+along the trailer heading), not a small-angle approximation. The same equations hold for
+``v < 0`` (reversing), where the trailer axle leads: with ``delta = 0``, ``phi_dot = -v / L_ka
+sin(phi)`` gives ``tan(phi / 2) = tan(phi0 / 2) exp(-v t / L_ka)``, which decays forward and
+*grows* in reverse. The articulation is open-loop unstable when reversing: without steering
+corrections it runs to ``max_articulation`` (:func:`jackknifed`), and a steady steering angle
+does so from ``phi = 0`` within ``max_articulation / (|v| k (1 - |a_tk| / L_ka))`` seconds
+(``k = tan(delta) / L_t``). ``tests/sim/test_reverse.py`` checks reversing against these answers
+and a fine RK4.
 """
 
 from __future__ import annotations
@@ -355,7 +366,8 @@ def jackknifed(pose: Tensor, params: dict[str, Tensor]) -> Tensor:
 
 
 def steady_state_articulation(steer: Tensor, params: dict[str, Tensor]) -> Tensor:
-    """Articulation [rad] the trailer settles to under a constant steering angle (forward driving).
+    """Articulation [rad] the trailer settles to under a constant steering angle (forward driving;
+    in reverse the same point is an unstable equilibrium, see below).
 
     With ``k = tan(delta) / L_t`` [1/m] the equilibria of ``phi_dot`` (independent of ``v``) solve
 

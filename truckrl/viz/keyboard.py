@@ -24,6 +24,13 @@ angle (lat.)    A/D: set-point moves left/right by         the wheel returns tow
 Set-point modes start from the commanded quantity's current value on the action scale (so a
 speed set-point never runs away from the real speed).
 
+Reversing: in a task that reverses (``Task.reverse``) the speed goes down to the truck's
+``-max_reverse_speed`` instead of stopping at 0, so the same keys drive backwards: holding S
+brakes to a standstill and, held on, engages reverse (the speed goes negative, down to
+``-max_reverse_speed``); W at a negative speed brakes to 0 and then drives forward. Nothing else
+changes: in a forward-only task S stops the truck at 0. The panel shows the gear
+(:func:`gear`): D forward, R reverse, N at rest.
+
 Viewer commands (:data:`COMMAND_KEYS`): R restart the scene, N new scene, P/Space pause,
 ``.`` one step while paused, ``+``/``-`` difficulty up/down, M manual/policy, Q/Esc quit.
 
@@ -93,9 +100,27 @@ KEY_HELP: tuple[tuple[str, str], ...] = (
 )
 
 
-def key_help(with_policy: bool) -> tuple[tuple[str, str], ...]:
-    """:data:`KEY_HELP` without the M line when there is no policy to switch to."""
-    return tuple(row for row in KEY_HELP if with_policy or row[0] != "M")
+#: The W / S help line of a task that reverses.
+REVERSE_HELP: tuple[str, str] = ("W / S", "forward / brake, reverse")
+
+
+def key_help(with_policy: bool, reverse: bool = False) -> tuple[tuple[str, str], ...]:
+    """:data:`KEY_HELP` without the M line when there is no policy to switch to; with
+    ``reverse`` (a task that reverses) the W / S line says that S reverses at rest."""
+    rows = (REVERSE_HELP if reverse and row[0] == "W / S" else row for row in KEY_HELP)
+    return tuple(row for row in rows if with_policy or row[0] != "M")
+
+
+#: [m/s] Below this |speed| the truck counts as at rest (gear N).
+REST_SPEED = 0.01
+
+
+def gear(speed: float) -> str:
+    """The gear shown for a speed [m/s]: ``"D"`` forward, ``"R"`` reverse, ``"N"`` at rest
+    (``|speed| < REST_SPEED``)."""
+    if speed >= REST_SPEED:
+        return "D"
+    return "R" if speed <= -REST_SPEED else "N"
 
 
 def command_for(key: str) -> Command | None:
