@@ -218,8 +218,9 @@ def _per_episode(results: dict, errors) -> list[dict]:
             v = results[k][j].item()
             e[k] = v if not isinstance(v, float) or math.isfinite(v) else None
         e["route"] = {k: results[k][j].item() for k in ROUTE_KEYS if k in results}
-        if "scene_info_keys" in results:
-            e["scene_info"] = {k: results[k][j].item() for k in results["scene_info_keys"]}
+        others = [k for k in results["scene_info_keys"] if k not in ROUTE_KEYS]
+        if others:
+            e["scene_info"] = {k: results[k][j].item() for k in others}
         e["params"] = {k: v[j].item() for k, v in results["params"].items()}
         e["actions"] = results["actions"][j, : int(results["length"][j])].tolist()
         eps.append(e)

@@ -84,9 +84,9 @@ from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
 from truckrl.agent.categories import trailer_length
+from truckrl.agent.rollout import SCENE_INFO_ENTRIES
 from truckrl.env import TruckEnv
 from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES, MODE_TABLE
-from truckrl.sim.scene import ROUTE_KEYS
 from truckrl.sim.validation import ConfigError, build, check_range, param, validate
 from truckrl.sim.vehicle import PARAM_KEYS, REVERSE_KEYS
 from truckrl.task import MAX_DIFFICULTY, OUTCOMES, EnvConfig, Quantity, make_task, shown
@@ -774,14 +774,15 @@ def plan_states(
     results["params"] = {k: states["params", k].cpu() for k in _param_keys(planner.task.reverse)}
     # The scene keys of evaluate_policy's results, flat and in its dtypes.
     results["trailer_length"] = trailer_length(results["params"])
-    if "route" in states.keys():
-        for k in ROUTE_KEYS:
-            v = states["route", k].cpu()
-            results[k] = v.long() if k == "route" else v
-    if "scene_info" in states.keys():  # other tasks' scene metadata (evaluation bins by it)
-        results["scene_info_keys"] = tuple(states["scene_info"].keys())
-        for k in results["scene_info_keys"]:
-            results[k] = states["scene_info", k].cpu()
+    # the task's scene metadata (evaluation bins by it), as evaluate_policy records it
+    keys: list[str] = []
+    for entry in SCENE_INFO_ENTRIES:
+        if entry in states.keys():
+            for k in states[entry].keys():
+                v = states[entry, k].cpu()
+                results[k] = v.long() if k == "route" else v
+                keys.append(k)
+    results["scene_info_keys"] = tuple(keys)
     task = planner.task
     tol_pos, tol_ang = task.tolerances(torch.tensor([float(difficulty)]))
     tolerance = (float(tol_pos[0]), math.degrees(float(tol_ang[0])))
@@ -848,7 +849,6 @@ def plan_episodes(
 
 def category_info(results: dict[str, Any]) -> dict[str, Tensor]:
     """Per-episode inputs of :func:`truckrl.agent.categories.task_bins` from plan results: the
-    trailer length and the scene metadata (intersection: the route keys; other tasks: their
-    ``scene_info`` entries)."""
-    keys = ("trailer_length", *ROUTE_KEYS, *results.get("scene_info_keys", ()))
+    trailer length and the scene metadata (intersection: the route keys; other tasks: theirs)."""
+    keys = ("trailer_length", *results.get("scene_info_keys", ()))
     return {k: results[k] for k in keys if k in results}
