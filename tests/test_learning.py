@@ -11,10 +11,10 @@ import pytest
 from tests.conftest import run_cli
 from truckrl.agent.checkpoint import load_training_state
 
-#: Frames in which ``python -m truckrl.train`` (default config: 600 planner demonstrations
-#: cloned first, ~10 min, then PPO) must reach difficulty 2. Its 60-minute README run got there
-#: at 1.51 M frames (train.log), PPO from scratch (experiment=fast) at 2.56 M; the budget
-#: leaves room for seed and machine differences and still fails a run that learns nothing.
+#: Frames in which ``python -m truckrl.train`` (default config, experiment=fast: PPO from
+#: scratch) must reach difficulty 2. The README's 60-minute run got there at 2.56 M frames
+#: (TensorBoard ``curriculum/difficulty``); experiment=demos at 1.51 M after its cloning. The
+#: budget leaves about 1.5x for seed and machine differences.
 FRAMES_TO_DIFFICULTY_2 = 4_000_000
 
 

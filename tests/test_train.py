@@ -240,7 +240,7 @@ def test_paper_preset_has_the_paper_numbers():
     assert not tc.env.compile
 
 
-def test_default_experiment_runs_fast_settings():
+def test_fast_experiment_is_the_default():
     tc = to_config(TrainConfig, compose_config("train"))
     assert tc.collector.frames_per_batch == 1024 * 64 and tc.env.compile
     assert (tc.ppo.num_epochs, tc.ppo.num_minibatches, tc.ppo.lr) == (5, 16, 3e-4)

@@ -1,8 +1,8 @@
 """Training-iteration profile: frames/s and where one PPO iteration's time goes.
 
 Runs the real training loop's pieces on the ``train`` config composed as ``python -m
-truckrl.train`` composes it (``experiment=demos`` by default, whose loop is ``fast``'s: the
-demonstrations it clones first are not timed; Hydra overrides as positional
+truckrl.train`` composes it (``experiment=fast`` by default; the demonstrations that
+``experiment=demos`` clones first are not timed; Hydra overrides as positional
 arguments or ``--override KEY=VALUE``): the env from ``make_env``, the actor-critic, the
 ``Collector``, the curriculum bookkeeping, :class:`~truckrl.agent.ppo.PPO` and the TensorBoard
 logger (into a temporary folder). After ``--warmup`` untimed iterations (they absorb
