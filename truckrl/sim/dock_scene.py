@@ -75,6 +75,7 @@ from torch import Tensor
 from truckrl.sim.geometry import rectangle_segments, rotate, wrap_angle
 from truckrl.sim.scene import KIND_CURB, KIND_OBSTACLE
 from truckrl.sim.validation import ConfigError, param, validate
+from truckrl.sim.vehicle import trailer_rear_offset, truck_extents
 
 #: Per-episode metadata keys of :attr:`DockSceneBatch.info` (meaning and units there).
 DOCK_INFO_KEYS: tuple[str, ...] = (
@@ -255,30 +256,6 @@ class DockSceneBatch:
         out = {f.name: getattr(self, f.name) for f in fields(self)}
         out = {k: v.to(device) for k, v in out.items() if k != "info"}
         return DockSceneBatch(**out, info={k: v.to(device) for k, v in self.info.items()})
-
-
-def truck_extents(params: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
-    """The truck at articulation 0 relative to its tractor rear axle [m], each ``[N]``.
-
-    Returns:
-        ``(front, rear, half_width)``: tractor front bumper ahead of the axle; the rear end
-        behind it (the trailer's rear, or the tractor's if that were farther); half the wider
-        body. The trailer rear-centre is ``rear`` behind the axle when the trailer is the
-        rearmost body (always, for the default vehicles; :func:`trailer_rear_offset`).
-    """
-    front = torch.maximum(
-        params["wheelbase"] + params["front_overhang"],
-        params["trailer_front_overhang"] - params["kingpin_offset"],
-    )
-    rear = torch.maximum(params["rear_overhang"], trailer_rear_offset(params))
-    half = 0.5 * torch.maximum(params["tractor_width"], params["trailer_width"])
-    return front, rear, half
-
-
-def trailer_rear_offset(params: dict[str, Tensor]) -> Tensor:
-    """``[N]`` [m]: trailer rear-centre behind the tractor rear axle at articulation 0,
-    ``a_tk + L_ka + trailer_rear_overhang``."""
-    return params["kingpin_offset"] + params["trailer_wheelbase"] + params["trailer_rear_overhang"]
 
 
 def _uniform(bounds: tuple[float, float], u: Tensor) -> Tensor:

@@ -81,6 +81,7 @@ from torch import Tensor
 
 from truckrl.sim.geometry import rectangle_segments, wrap_angle
 from truckrl.sim.validation import ConfigError, param, validate
+from truckrl.sim.vehicle import truck_extents
 
 #: Curb segment slots per scene: 2 roads x 2 curbs x 2 pieces (a straight road uses the first 2).
 CURB_SLOTS = 8
@@ -426,14 +427,7 @@ def generate_scenes(
     def rand(*shape: int) -> Tensor:
         return torch.rand(*shape, generator=generator, device=dev)
 
-    ext = _Extents(
-        front=p["wheelbase"] + p["front_overhang"],
-        rear=torch.maximum(
-            p["rear_overhang"],
-            p["kingpin_offset"] + p["trailer_wheelbase"] + p["trailer_rear_overhang"],
-        ),
-        half_width=0.5 * torch.maximum(p["tractor_width"], p["trailer_width"]),
-    )
+    ext = _Extents(*truck_extents(p))
     crossing = rand(n) < cfg.crossing_prob
     roads = _sample_roads(cfg, rand, n, dev)
     ok, cross_start, cross_goal, cross_route = _crossing_poses(cfg, rand, roads, ext)

@@ -89,6 +89,7 @@ from torch import Tensor
 from truckrl.sim.geometry import rotate, wrap_angle
 from truckrl.sim.scene import KIND_CURB
 from truckrl.sim.validation import ConfigError, param, validate
+from truckrl.sim.vehicle import truck_extents
 
 #: Segment slots per scene (module doc, "Segments").
 NUM_SEGMENTS = 9
@@ -242,18 +243,6 @@ class UTurnSceneBatch:
         out = {f.name: getattr(self, f.name) for f in fields(self)}
         out = {k: v.to(device) for k, v in out.items() if k != "info"}
         return UTurnSceneBatch(**out, info={k: v.to(device) for k, v in self.info.items()})
-
-
-def truck_extents(p: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
-    """``(front, rear, half_width)`` [m], each ``[N]``: the footprint at articulation 0 around
-    the tractor rear axle (front bumper ahead, farther rear end behind, half the wider body)."""
-    front = p["wheelbase"] + p["front_overhang"]
-    rear = torch.maximum(
-        p["rear_overhang"],
-        p["kingpin_offset"] + p["trailer_wheelbase"] + p["trailer_rear_overhang"],
-    )
-    half_width = 0.5 * torch.maximum(p["tractor_width"], p["trailer_width"])
-    return front, rear, half_width
 
 
 def forward_uturn_width(p: dict[str, Tensor]) -> tuple[Tensor, Tensor]:

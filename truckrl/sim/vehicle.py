@@ -227,6 +227,30 @@ def trailer_axle(pose: Tensor, params: dict[str, Tensor]) -> Tensor:
     return torch.stack((kx - l_ka * torch.cos(psi), ky - l_ka * torch.sin(psi)), dim=-1)
 
 
+def truck_extents(params: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """The truck at articulation 0 relative to its tractor rear axle [m], each ``[N]``.
+
+    Returns:
+        ``(front, rear, half_width)``: tractor front bumper ahead of the axle; the rear end
+        behind it (the trailer's rear, or the tractor's if that were farther); half the wider
+        body. The trailer rear-centre is ``rear`` behind the axle when the trailer is the
+        rearmost body (always, for the default vehicles; :func:`trailer_rear_offset`; scene generators place start and goal footprints with it).
+    """
+    front = torch.maximum(
+        params["wheelbase"] + params["front_overhang"],
+        params["trailer_front_overhang"] - params["kingpin_offset"],
+    )
+    rear = torch.maximum(params["rear_overhang"], trailer_rear_offset(params))
+    half = 0.5 * torch.maximum(params["tractor_width"], params["trailer_width"])
+    return front, rear, half
+
+
+def trailer_rear_offset(params: dict[str, Tensor]) -> Tensor:
+    """``[N]`` [m]: trailer rear-centre behind the tractor rear axle at articulation 0,
+    ``a_tk + L_ka + trailer_rear_overhang``."""
+    return params["kingpin_offset"] + params["trailer_wheelbase"] + params["trailer_rear_overhang"]
+
+
 def _bodies(pose: Tensor, params: dict[str, Tensor], fn):
     x, y, theta, phi = pose.unbind(-1)
     p = params

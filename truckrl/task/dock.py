@@ -51,11 +51,10 @@ from truckrl.sim.dock_scene import (
     START_PULLED,
     DockSceneConfig,
     generate_dock_scenes,
-    trailer_rear_offset,
 )
 from truckrl.sim.geometry import to_local, wrap_angle
 from truckrl.sim.validation import ConfigError, param, validate
-from truckrl.sim.vehicle import trailer_axle
+from truckrl.sim.vehicle import trailer_axle, trailer_rear_offset
 from truckrl.task.base import Task
 from truckrl.task.config import SENSOR_SCALE, EnvConfig, TaskConfig
 from truckrl.task.schema import CategoryDim, Quantity

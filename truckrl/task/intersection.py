@@ -112,24 +112,10 @@ class IntersectionTask(Task):
         return state
 
     def errors(self, s: dict[str, Any]) -> dict[str, Tensor]:
-        """Position of the tractor rear axle to the goal [m]; tractor and trailer heading to the
-        goal heading [rad] (the goal is a rear-axle pose with the trailer aligned)."""
-        pose, goal = s["pose"], s["goal"]
-        pos = torch.hypot(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1])
-        tractor = wrap_angle(goal[:, 2] - pose[:, 2]).abs()
-        trailer = wrap_angle(goal[:, 2] - pose[:, 2] - pose[:, 3]).abs()
-        return {
-            "pos_error": pos,
-            "tractor_heading_error": tractor,
-            "trailer_heading_error": trailer,
-        }
+        return pose_errors(s)
 
     def success(self, err: dict[str, Tensor], tol_pos: Tensor, tol_ang: Tensor) -> Tensor:
-        return (
-            (err["pos_error"] <= tol_pos)
-            & (err["tractor_heading_error"] <= tol_ang)
-            & (err["trailer_heading_error"] <= tol_ang)
-        )
+        return pose_success(err, tol_pos, tol_ang)
 
     def reward_terms(
         self, before: dict[str, Any], after: dict[str, Any], flags: dict[str, Tensor]
@@ -152,6 +138,30 @@ class IntersectionTask(Task):
             "r_collision": torch.where(failed, w.collision, zero),
             "r_timeout": torch.where(flags["truncated"], w.timeout, zero),
         }
+
+
+def pose_errors(s: dict[str, Any]) -> dict[str, Tensor]:
+    """Position of the tractor rear axle to the goal [m]; tractor and trailer heading to the goal
+    heading [rad] (the goal is a rear-axle pose with the trailer aligned), each ``[N]``. The
+    errors of every task whose goal is such a pose (``intersection``, ``uturn``)."""
+    pose, goal = s["pose"], s["goal"]
+    pos = torch.hypot(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1])
+    tractor = wrap_angle(goal[:, 2] - pose[:, 2]).abs()
+    trailer = wrap_angle(goal[:, 2] - pose[:, 2] - pose[:, 3]).abs()
+    return {
+        "pos_error": pos,
+        "tractor_heading_error": tractor,
+        "trailer_heading_error": trailer,
+    }
+
+
+def pose_success(err: dict[str, Tensor], tol_pos: Tensor, tol_ang: Tensor) -> Tensor:
+    """``[N]`` bool: all three :func:`pose_errors` within the tolerances."""
+    return (
+        (err["pos_error"] <= tol_pos)
+        & (err["tractor_heading_error"] <= tol_ang)
+        & (err["trailer_heading_error"] <= tol_ang)
+    )
 
 
 #: Smallest |sin| of the angle between the start and goal lanes for which they count as meeting

@@ -46,12 +46,13 @@ from typing import TYPE_CHECKING, Any
 import torch
 from torch import Tensor
 
-from truckrl.sim.geometry import rotate, wrap_angle
+from truckrl.sim.geometry import rotate
 from truckrl.sim.uturn_scene import INFO_KEYS, UTurnSceneConfig, generate_uturn_scenes
 from truckrl.sim.validation import param, validate
 from truckrl.task.base import Task
 from truckrl.task.config import TaskConfig
-from truckrl.task.schema import CategoryDim, Quantity
+from truckrl.task.intersection import IntersectionTask, pose_errors, pose_success
+from truckrl.task.schema import CategoryDim
 
 if TYPE_CHECKING:
     from tensordict import TensorDict
@@ -128,11 +129,7 @@ class UTurnTask(Task):
     name = "uturn"
     config_class = UTurnConfig
     reverse = True
-    error_quantities = (
-        Quantity("pos_error", "m", "position"),
-        Quantity("tractor_heading_error", "rad", "tractor heading"),
-        Quantity("trailer_heading_error", "rad", "trailer heading"),
-    )
+    error_quantities = IntersectionTask.error_quantities
     reward_keys = (
         "r_progress",
         "r_tractor_heading",
@@ -196,24 +193,11 @@ class UTurnTask(Task):
         return state
 
     def errors(self, s: dict[str, Any]) -> dict[str, Tensor]:
-        """Position of the tractor rear axle to the goal [m]; tractor and trailer heading to the
-        goal heading [rad] (as the intersection task)."""
-        pose, goal = s["pose"], s["goal"]
-        pos = torch.hypot(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1])
-        tractor = wrap_angle(goal[:, 2] - pose[:, 2]).abs()
-        trailer = wrap_angle(goal[:, 2] - pose[:, 2] - pose[:, 3]).abs()
-        return {
-            "pos_error": pos,
-            "tractor_heading_error": tractor,
-            "trailer_heading_error": trailer,
-        }
+        """As the intersection task (:func:`~truckrl.task.intersection.pose_errors`)."""
+        return pose_errors(s)
 
     def success(self, err: dict[str, Tensor], tol_pos: Tensor, tol_ang: Tensor) -> Tensor:
-        return (
-            (err["pos_error"] <= tol_pos)
-            & (err["tractor_heading_error"] <= tol_ang)
-            & (err["trailer_heading_error"] <= tol_ang)
-        )
+        return pose_success(err, tol_pos, tol_ang)
 
     def reward_terms(
         self, before: dict[str, Any], after: dict[str, Any], flags: dict[str, Tensor]
