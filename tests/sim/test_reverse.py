@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests.sim.test_vehicle import _rk4_reference
 from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES, Control
 from truckrl.sim.validation import ConfigError
 from truckrl.sim.vehicle import (
@@ -142,34 +143,8 @@ def test_constant_steering_in_reverse_runs_the_circle_backwards(delta):
 
 
 # -------------------------------------------------------------------- fine RK4 reference
-def _rk4(p, speed, steer, m) -> np.ndarray:
-    """Classical RK4 (m sub-steps per control step) on the vehicle-docstring ODE; ``[T+1, N, 4]``."""
-    l_t, a, l_ka = (p[k].numpy() for k in ("wheelbase", "kingpin_offset", "trailer_wheelbase"))
-
-    def f(s, v, k):
-        th, ph = s[2], s[3]
-        w = v * k
-        return np.stack(
-            (
-                v * np.cos(th),
-                v * np.sin(th),
-                w,
-                -w * (1 + a / l_ka * np.cos(ph)) - v / l_ka * np.sin(ph),
-            )
-        )
-
-    s = np.zeros((4, speed.shape[1]))
-    out, h = [s], DT / m
-    for v, d in zip(speed, steer, strict=True):
-        k = np.tan(d) / l_t
-        for _ in range(m):
-            k1 = f(s, v, k)
-            k2 = f(s + 0.5 * h * k1, v, k)
-            k3 = f(s + 0.5 * h * k2, v, k)
-            k4 = f(s + h * k3, v, k)
-            s = s + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        out.append(s)
-    return np.stack(out).transpose(0, 2, 1)
+# the same independent RK4 oracle as the forward tests (controls held over each step)
+_rk4 = _rk4_reference
 
 
 def test_random_reversing_trucks_match_a_fine_rk4_reference():
