@@ -102,7 +102,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     # Create collector
     collector = Collector(
         env,
-        ac.actor,
+        ac.rollout_policy,  # actor + value head: GAE reuses the collected values
         frames_per_batch=tc.collector.frames_per_batch,
         total_frames=-1,
         device=tc.device,

@@ -7,7 +7,13 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from truckrl.agent.network import LidarEncoder, ModelConfig, make_actor_critic, parameter_count
+from truckrl.agent.network import (
+    LidarEncoder,
+    ModelConfig,
+    circular_conv_index,
+    make_actor_critic,
+    parameter_count,
+)
 from truckrl.sim.validation import ConfigError
 
 
@@ -101,3 +107,35 @@ def test_deterministic_mode_returns_the_mean():
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         ac.actor(td)
     torch.testing.assert_close(td["action"], td["loc"])
+
+
+@pytest.mark.parametrize("beams", [3, 4, 5, 8, 16, 33, 64])
+def test_dense_ring_forward_equals_the_convolution(beams):
+    """The encoder's dense-matrix forward against the nn.Conv1d layers it holds, run directly."""
+    torch.manual_seed(beams)
+    cfg = ModelConfig()
+    enc = LidarEncoder(beams, cfg)
+    x = torch.rand(6, beams, requires_grad=True)
+    y = enc(x)
+    ref = enc.net(x.unsqueeze(1)).flatten(1)  # the torch convolutions, circular padding
+    torch.testing.assert_close(y, ref, rtol=1e-5, atol=1e-6)
+    g = torch.randn_like(y)
+    grads = torch.autograd.grad(y, [x, *enc.parameters()], g)
+    ref_grads = torch.autograd.grad(ref, [x, *enc.parameters()], g)
+    for a, b in zip(grads, ref_grads, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_circular_conv_index_by_hand():
+    # 1 -> 1 channel, k = 3, stride 1, ring of 4: output j reads inputs j-1, j, j+1 (mod 4)
+    index, l_out = circular_conv_index(1, 1, 4, 3, 1)
+    assert l_out == 4
+    w = torch.tensor([10.0, 20.0, 30.0])  # taps t = 0, 1, 2
+    m = torch.cat([torch.zeros(1), w])[index]
+    expected = torch.tensor(
+        [[20.0, 10.0, 0.0, 30.0],  # input 0 feeds output 0 (centre), 1 (left tap), 3 (right tap)
+         [30.0, 20.0, 10.0, 0.0],
+         [0.0, 30.0, 20.0, 10.0],
+         [10.0, 0.0, 30.0, 20.0]]
+    )  # fmt: skip
+    torch.testing.assert_close(m, expected)

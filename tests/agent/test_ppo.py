@@ -122,3 +122,40 @@ def test_adam_stays_foreach_after_loading_an_older_optimizer_state():
         group["foreach"] = None  # what checkpoints written before the foreach switch hold
     ppo.load_state_dict(state)
     assert all(g["foreach"] is True for g in ppo.optimizer.param_groups)
+
+
+@pytest.mark.parametrize("with_values", [True, False])
+def test_advantages_from_collected_values_match_torchrl_gae_with_the_critic(with_values):
+    """GAE on values recorded during collection (next values shifted, critic only at episode
+    ends and the last step) equals TorchRL's GAE running the critic on every observation."""
+    from torchrl.objectives.value import GAE
+
+    from truckrl.env import TruckEnv
+
+    torch.manual_seed(0)
+    env = TruckEnv(num_envs=6, seed=5, config={"max_steps": 12})  # truncations inside rows
+    ac = make_actor_critic(ModelConfig(), 26, 16)
+    policy = ac.rollout_policy if with_values else ac.actor
+    with torch.no_grad():
+        batch = env.rollout(40, policy, break_when_any_done=False)
+    env.close()
+    assert batch["next", "done"].any() and not batch["next", "done"][:, -1].all()
+    assert ("state_value" in batch.keys()) == with_values
+    cfg = PPOConfig(normalize_advantage=False)
+    ours = PPO(ac, cfg).compute_advantages(batch.clone())
+    ref = batch.clone().exclude("state_value")
+    GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=ac.critic, average_gae=False)(ref)
+    torch.testing.assert_close(ours["advantage"], ref["advantage"], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(ours["value_target"], ref["value_target"], rtol=1e-5, atol=1e-6)
+
+
+def test_advantages_of_rows_that_are_not_trajectories_use_the_critic_on_every_next_step():
+    from torchrl.objectives.value import GAE
+
+    ac = make_actor_critic(ModelConfig(), 26, 16)
+    batch = rollout(ac)  # random next observations: the shift shortcut would be wrong here
+    cfg = PPOConfig(normalize_advantage=False)
+    ours = PPO(ac, cfg).compute_advantages(batch.clone())
+    ref = batch.clone()
+    GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=ac.critic, average_gae=False)(ref)
+    torch.testing.assert_close(ours["advantage"], ref["advantage"], rtol=1e-5, atol=1e-6)

@@ -116,6 +116,19 @@ def _span(timings: dict[str, float] | None, key: str, device: torch.device) -> I
 UPDATE_SPANS = ("gae", "loss_forward", "backward", "optimizer", "metrics")
 
 
+def _continues(batch: TensorDictBase, nxt: TensorDictBase, ends: Tensor) -> bool:
+    """Whether each step's next observation is the following step's observation, except at ``ends``.
+
+    ``batch`` and ``nxt`` are ``[..., T]`` (time last), ``ends`` ``[..., T]`` bool. True for
+    collector output; costs one comparison of the observations (a host sync, in the update).
+    """
+    ok = ends[..., :-1].clone()  # across an episode end anything goes
+    same = torch.ones_like(ok)
+    for key in (OBS_KEY, LIDAR_KEY):
+        same &= (batch.get(key)[..., 1:, :] == nxt.get(key)[..., :-1, :]).all(-1)
+    return bool((ok | same).all())
+
+
 class PPO:
     """One PPO learner: call :meth:`update` with each collected batch.
 
@@ -127,7 +140,8 @@ class PPO:
     def __init__(self, ac: ActorCritic, cfg: PPOConfig) -> None:
         self.ac = ac
         self.cfg = cfg
-        self.gae = GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=ac.critic, average_gae=False)
+        # no value network: compute_advantages supplies both value entries (see there)
+        self.gae = GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=None, average_gae=False)
         # The critic is the value head alone: the actor pass inside the loss already wrote a
         # differentiable "hidden", so the shared trunk runs once per minibatch and still gets
         # gradients from both losses.
@@ -162,13 +176,42 @@ class PPO:
 
     @torch.no_grad()
     def compute_advantages(self, batch: TensorDictBase) -> TensorDictBase:
-        """Add "advantage", "value_target" and "state_value" to a ``[..., T]`` rollout (time last)."""
+        """Add "advantage", "value_target" and "state_value" to a ``[..., T]`` rollout (time last).
+
+        The critic's values of the collected observations come from the batch when the collector
+        ran :attr:`ActorCritic.rollout_policy <truckrl.agent.network.ActorCritic.rollout_policy>`
+        (the same weights: the update has not started yet); otherwise the critic runs over the
+        batch once. The value of each step's next observation is the next step's value, except
+        where the episode ended (the next observation is the terminal one, not the reset one) and
+        at the last step of each row: only those observations go through the critic (about
+        ``1/T`` of the batch plus the episode ends, instead of the whole batch twice). A batch
+        whose rows are not trajectories (a next observation differs from the following step's
+        observation within an episode) gets the critic on every next observation instead.
+        """
         batch = batch.exclude(HIDDEN_KEY, ("next", HIDDEN_KEY))
+        value = batch.get("state_value", None)
+        if value is None:  # collected by the actor alone
+            value = self._values(batch)
+            batch.set("state_value", value)
+        # steps whose next observation is not the next step's observation: [..., T]
+        ends = batch.get(("next", "done")).squeeze(-1).clone()
+        ends[..., -1] = True
+        nxt = batch.get("next")
+        if not _continues(batch, nxt, ends):  # not one trajectory per row: no shortcut
+            ends = torch.ones_like(ends)
+        next_value = torch.empty_like(value)
+        next_value[..., :-1, :] = value[..., 1:, :]
+        next_value[ends] = self._values(nxt[ends])
+        batch.set(("next", "state_value"), next_value)
         self.gae(batch)
         if self.cfg.normalize_advantage:
             adv = batch["advantage"]
             batch["advantage"] = (adv - adv.mean()) / (adv.std() + 1e-8)
         return batch
+
+    def _values(self, td: TensorDictBase) -> Tensor:
+        """Critic values ``[*B, 1]`` of the observations in ``td`` (``[*B]``), without grad."""
+        return self.ac.critic(td.select(OBS_KEY, LIDAR_KEY))["state_value"]
 
     def update(
         self, batch: TensorDictBase, timings: dict[str, float] | None = None

@@ -205,7 +205,8 @@ def run(args: argparse.Namespace) -> dict:
     curriculum = Curriculum(tc.curriculum)
     tolerance = set_difficulty(env, curriculum.difficulty)
     collector = Collector(
-        env, ac.actor, frames_per_batch=c.frames_per_batch, total_frames=-1, device=tc.device,
+        env, ac.rollout_policy, frames_per_batch=c.frames_per_batch, total_frames=-1,
+        device=tc.device,
         auto_register_policy_transforms=False,
     )  # fmt: skip
     tracker = EpisodeTracker(task.reward_keys, task.error_quantities)
