@@ -18,6 +18,19 @@ def test_defaults_compose_to_the_dataclass_defaults():
     assert ec == EvaluateConfig(checkpoint="x")
 
 
+def test_gpu_experiment_asks_for_cuda_and_refuses_a_machine_without_it():
+    import torch
+
+    cfg = compose_config("train", "experiment=gpu")
+    assert (cfg.device, cfg.collector.num_envs, cfg.collector.steps_per_env) == ("cuda", 32768, 32)
+    assert (cfg.ppo.num_epochs, cfg.ppo.num_minibatches) == (5, 8)
+    if torch.cuda.is_available():
+        assert to_config(TrainConfig, cfg).device == "cuda"
+    else:
+        with pytest.raises(ConfigError, match=r"^device = 'cuda' but torch sees no CUDA GPU"):
+            to_config(TrainConfig, cfg)
+
+
 def test_demos_experiment_is_fast_plus_its_values():
     fast = to_config(TrainConfig, compose_config("train", "experiment=fast"))
     demos = to_config(TrainConfig, compose_config("train", "experiment=demos"))

@@ -253,15 +253,20 @@ class PlayConfig:
 
 
 def check_device(name: str, device: str) -> None:
-    """Raise :class:`ConfigError` unless ``device`` names a torch device."""
+    """Raise :class:`ConfigError` unless ``device`` names a torch device this machine has."""
     import torch
 
     try:
-        torch.device(device)
+        dev = torch.device(device)
     except (RuntimeError, TypeError):
         raise ConfigError(
             f"{name} = {device!r} is not a torch device (cpu, cuda, cuda:1)"
         ) from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(
+            f"{name} = {device!r} but torch sees no CUDA GPU here (torch.cuda.is_available() is "
+            f"False): use {name}=cpu"
+        )
 
 
 def structured(cls: type) -> Any:
