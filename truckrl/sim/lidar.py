@@ -343,13 +343,47 @@ def lidar_scan(
     ends = to_local(segments.unflatten(-1, (2, 2)).flatten(-3, -2), origin, heading)
     local = ends.unflatten(-2, (-1, 2)).flatten(-2)  # [..., E, 4]
     if method == "dense":
-        zero = torch.zeros((), dtype=local.dtype, device=local.device).expand(2)
-        d = ray_segment_distance(zero, rel_angles.to(local), local, mask)  # [..., R, E]
-        if d.shape[-1] == 0:
-            return torch.full(d.shape[:-1], float(max_range), dtype=d.dtype, device=d.device)
-        return d.amin(-1).clamp_max(max_range)
+        rel = rel_angles.to(local)
+        if local.shape[-2] == 0:
+            shape = (*local.shape[:-2], rel.shape[-1])
+            return torch.full(shape, float(max_range), dtype=local.dtype, device=local.device)
+        chunk = _dense_chunk(local, rel.shape[-1])
+        if chunk is None:
+            return _dense_scan(local, mask, rel, max_range)
+        # Eager: the [..., R, E] temporaries of a big batch are MBs each, and allocating and
+        # faulting them in costs more than the arithmetic. Rows in chunks keep them in cache;
+        # every row's ops are the same, so the result is bit-identical.
+        flat = local.reshape(-1, *local.shape[-2:])
+        fmask = None if mask is None else mask.reshape(-1, mask.shape[-1])
+        parts = [
+            _dense_scan(
+                flat[i : i + chunk], None if fmask is None else fmask[i : i + chunk], rel, max_range
+            )
+            for i in range(0, flat.shape[0], chunk)
+        ]
+        return torch.cat(parts).reshape(*local.shape[:-2], rel.shape[-1])
     width = _span_width(rel_angles)
     return _span_scan(local, mask, rel_angles.to(local), max_range, width)
+
+
+#: Pairs (rows x beams x segments) per chunk of the eager dense scan: ~256 KiB float32 temporaries.
+DENSE_CHUNK_PAIRS = 1 << 16
+
+
+def _dense_chunk(local: Tensor, num_beams: int) -> int | None:
+    """Rows per chunk of the eager dense scan, or ``None`` for one pass (compiled, or small)."""
+    if torch.compiler.is_compiling() or local.dim() < 3:
+        return None
+    rows = local.shape[:-2].numel()
+    chunk = max(1, DENSE_CHUNK_PAIRS // max(1, num_beams * local.shape[-2]))
+    return None if chunk >= rows else chunk
+
+
+def _dense_scan(local: Tensor, mask: Tensor | None, rel: Tensor, max_range: float) -> Tensor:
+    """Dense form of :func:`lidar_scan` on sensor-frame segments ``local [..., E, 4]`` (E > 0)."""
+    zero = torch.zeros((), dtype=local.dtype, device=local.device).expand(2)
+    d = ray_segment_distance(zero, rel, local, mask)  # [..., R, E]
+    return d.amin(-1).clamp_max(max_range)
 
 
 #: Gather widths of the span form by beam-angle tensor: ``id -> (weakref, version, width)``.
