@@ -35,6 +35,7 @@ from truckrl.sim.geometry import (
     RAY_TOLERANCE_ULPS,
     point_segment_distance,
     ray_segment_distance,
+    ray_tolerance,
     to_local,
     wrap_angle,
 )
@@ -380,10 +381,39 @@ def _dense_chunk(local: Tensor, num_beams: int) -> int | None:
 
 
 def _dense_scan(local: Tensor, mask: Tensor | None, rel: Tensor, max_range: float) -> Tensor:
-    """Dense form of :func:`lidar_scan` on sensor-frame segments ``local [..., E, 4]`` (E > 0)."""
-    zero = torch.zeros((), dtype=local.dtype, device=local.device).expand(2)
-    d = ray_segment_distance(zero, rel, local, mask)  # [..., R, E]
-    return d.amin(-1).clamp_max(max_range)
+    """Dense form of :func:`lidar_scan` on sensor-frame segments ``local [..., E, 4]`` (E > 0).
+
+    Under ``torch.compile`` (fused anyway) it is :func:`ray_segment_distance` from the origin.
+    Eager, the same arithmetic written for the origin at ``(0, 0)`` (``x - 0`` is ``x``, bit for
+    bit) with in-place passes and the padding folded into the hit test: every value that can
+    reach the minimum is computed by the same float operations, so the ranges are identical
+    (tests/sim/test_lidar.py checks it against ray_segment_distance on adversarial scenes).
+    """
+    if torch.compiler.is_compiling() or local.requires_grad:
+        zero = torch.zeros((), dtype=local.dtype, device=local.device).expand(2)
+        d = ray_segment_distance(zero, rel, local, mask)  # [..., R, E]
+        return d.amin(-1).clamp_max(max_range)
+    eps = torch.finfo(local.dtype).eps
+    dx = torch.cos(rel).unsqueeze(-1)  # [R, 1]
+    dy = torch.sin(rel).unsqueeze(-1)
+    p0x, p0y, p1x, p1y = local.unsqueeze(-3).unbind(-1)  # [..., 1, E], ends relative to origin
+    tol0, tol1 = ray_tolerance(p0x, p0y, eps), ray_tolerance(p1x, p1y, eps)
+    s0 = (dx * p0y).sub_(dy * p0x)  # [..., R, E] signed distances to the beam's line
+    s1 = (dx * p1y).sub_(dy * p1x)
+    t0 = (dx * p0x).add_(dy * p0y)  # ranges along the beam
+    t1 = (dx * p1x).add_(dy * p1y)
+    in0, in1 = s0.abs() <= tol0, s1.abs() <= tol1
+    crosses = (s0 * s1) <= 0.0
+    u = torch.where(crosses, (s0 / (s0 - s1)).clamp_(0.0, 1.0), (~in0).to(s0.dtype))
+    t = (t1 - t0).mul_(u).add_(t0)  # t0 + u * (t1 - t0)
+    along = in0 & in1
+    t_near = torch.where(along, torch.minimum(t0, t1), t)
+    t_far = torch.where(along, torch.maximum(t0, t1), t)
+    hit = (crosses | in0).logical_or_(in1).logical_and_(t_far >= -torch.maximum(tol0, tol1))
+    if mask is not None:
+        hit.logical_and_(mask.unsqueeze(-2))
+    dist = t_near.clamp_min_(0.0).masked_fill_(~hit, math.inf)
+    return dist.amin(-1).clamp_max(max_range)
 
 
 #: Gather widths of the span form by beam-angle tensor: ``id -> (weakref, version, width)``.
