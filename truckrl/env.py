@@ -278,11 +278,7 @@ class TruckEnv(EnvBase):
             else:
                 self._state = self.task.on_reset(self._new_episodes(n), self._difficulty)
             self._compact_scene()
-            out = TensorDict(
-                self._observe_fn(self._flat_state(), self._difficulty),
-                batch_size=[n],
-                device=self.device,
-            )
+            cols = dict(self._observe_fn(self._flat_state(), self._difficulty))
         else:
             idx = reset.reshape(n).nonzero().squeeze(-1)  # one sync per reset call
             # Plain tensors and per-leaf index_put_ instead of Composite.zero() (which builds
@@ -301,12 +297,13 @@ class TruckEnv(EnvBase):
                 flat["params"] = {k: fresh.get(("params", k)) for k in self._param_keys}
                 for k, v in self.task.observe(flat, difficulty).items():
                     cols[k].index_put_((idx,), v)
-            out = TensorDict(cols, batch_size=[n], device=self.device)
+        # Reward terms 0 and flags / done signals False at the start of an episode; one
+        # TensorDict built once (each update() on a TensorDict validates every entry).
         false_col = torch.zeros(n, 1, dtype=torch.bool, device=self.device)
-        out.update({k: torch.zeros(n, 1, device=self.device) for k in self.task.reward_keys})
-        out.update({k: false_col for k in FLAG_KEYS})
-        out.update(done=false_col, terminated=false_col, truncated=false_col)
-        return out
+        cols.update({k: torch.zeros(n, 1, device=self.device) for k in self.task.reward_keys})
+        cols.update({k: false_col for k in FLAG_KEYS})
+        cols.update(done=false_col, terminated=false_col, truncated=false_col)
+        return TensorDict(cols, batch_size=[n], device=self.device)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict["action"]
