@@ -245,6 +245,8 @@ class TruckEnv(EnvBase):
         outputs are bit-identical while the pair tests shrink by ``E / W`` (72 -> 56 for the
         default intersection scenes at N = 1,024). Recomputed for the rows ``index`` reset
         (default all); the one host read (``W``) happens in the reset path, which syncs anyway.
+        With ``env.compile`` the width only grows (a high-water mark), so a small batch whose
+        largest scene varies from episode to episode compiles a few graphs, not one per width.
         """
         seg, mask = self._state["segments"], self._state["mask"]
         if index is None:
@@ -258,6 +260,8 @@ class TruckEnv(EnvBase):
         self._counts[index] = rows_mask.sum(-1)
         e = mask.shape[-1]
         width = min(e, max(8, -(-int(self._counts.max()) // 8) * 8)) if e else 0
+        if self.config.compile:  # only grow: each new width is a new graph to compile
+            width = self._width = max(width, getattr(self, "_width", 0))
         self._scene = (self._cseg[:, :width], self._cmask[:, :width])
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
