@@ -372,8 +372,9 @@ DENSE_CHUNK_PAIRS = 1 << 16
 
 
 def _dense_chunk(local: Tensor, num_beams: int) -> int | None:
-    """Rows per chunk of the eager dense scan, or ``None`` for one pass (compiled, or small)."""
-    if torch.compiler.is_compiling() or local.dim() < 3:
+    """Rows per chunk of the eager dense scan on the CPU, or ``None`` for one pass (compiled,
+    small, or on an accelerator, where each chunk would cost its own kernel launches)."""
+    if torch.compiler.is_compiling() or local.dim() < 3 or local.device.type != "cpu":
         return None
     rows = local.shape[:-2].numel()
     chunk = max(1, DENSE_CHUNK_PAIRS // max(1, num_beams * local.shape[-2]))
