@@ -301,6 +301,11 @@ def run_scaling(args: argparse.Namespace) -> dict:
     rows = []
 
     def measure(axis: str, value: int, n: int, compiled: bool, overrides: dict | None) -> None:
+        if compiled:
+            # Every config is a new graph of the same functions: without a reset, dynamo stops
+            # compiling them after torch._dynamo.config.cache_size_limit (8) graphs and runs
+            # the later rows eagerly.
+            torch._dynamo.reset()
         env = _make_env(n, compiled, args.device, args.seed, overrides)
         steps = _scaled_steps(args, n)
         sps, warm = steps_per_second(env, steps, min(args.warmup, steps))
@@ -374,6 +379,8 @@ def run_peers(args: argparse.Namespace) -> dict:
     rows.append({"simulator": "VMAS 1.5 (kinematic bicycle)", "compile": False, "trucks": n, **vm})
     print(f"  VMAS      N={n:<6d} {vm['steps/s']:12,.0f} steps/s", flush=True)
     for compiled in sorted(_modes(args)):
+        if compiled:
+            torch._dynamo.reset()  # a fresh graph, as in the --scaling rows
         env = _make_env(n, compiled, args.device, args.seed)
         sps, warm = steps_per_second(env, steps, warmup)
         rows.append(

@@ -126,9 +126,11 @@ def _decades(lo: float, hi: float) -> list[float]:
 
 
 def _tick(v: float) -> str:
-    for unit, div in (("M", 1e6), ("k", 1e3)):
-        if v >= div:
-            return f"{v / div:g}{unit}"
+    """Short axis label: 3 -> "3", 1024 -> "1024", 16384 -> "16k", 2.5e6 -> "2.5M"."""
+    if v >= 1e6:
+        return f"{v / 1e6:.3g}M"
+    if v >= 1e4:
+        return f"{v / 1e3:.3g}k"
     return f"{v:g}"
 
 
@@ -170,7 +172,10 @@ def render_loglog_panels(
             for x in sorted(set(xs)):
                 xx, _ = px(x, y_lo)
                 cv2.line(img, (xx, bottom), (xx, bottom + 4), grey, 1)
-                cv2.putText(img, _tick(x), (xx - 10, bottom + 17), font, 0.38, grey, 1, cv2.LINE_AA)
+                label = _tick(x)
+                cv2.putText(
+                    img, label, (xx - 4 * len(label), bottom + 17), font, 0.38, grey, 1, cv2.LINE_AA
+                )
             legend_x = left + 6
             for (name, s), color in zip(series.items(), SERIES_COLORS, strict=False):
                 line = np.array([px(x, y) for x, y in s if x > 0 and y > 0], np.int32)
