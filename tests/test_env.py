@@ -255,3 +255,40 @@ def test_bad_config_names_the_field(kwargs, field):
 def test_bad_num_envs(n):
     with pytest.raises(ConfigError, match="num_envs"):
         TruckEnv(num_envs=n)
+
+
+def test_compacted_scene_gives_the_outputs_of_the_full_scene():
+    # The env hands the step a valid-first scene cut to the largest valid count (padding
+    # dropped). Independent answer: Task.transition on the full, uncompacted state. Half the
+    # trucks are moved onto a valid segment's midpoint so collisions occur; row 0 has every slot
+    # valid (nothing to cut), row 1 none; partial resets change the rows and the cut between steps.
+    n = 64
+    env = make(n, seed=4)
+    env.reset()
+    s = env.get_state()
+    s["mask"][0] = True
+    s["mask"][1] = False
+    x, y = s["pose"][0, 0], s["pose"][0, 1]
+    s["segments"][0, -1] = torch.stack(
+        (x - 1, y - 1, x + 1, y + 1)
+    )  # the last slot, under the truck
+    first = s["mask"].float().argmax(-1)
+    mid = s["segments"][torch.arange(n), first].view(n, 2, 2).mean(-2)
+    s["pose"][2::2, :2] = mid[2::2]
+    td = env.set_state(s)
+    gen = torch.Generator().manual_seed(0)
+    collided = resets = 0
+    for _ in range(8):
+        state = env.get_state()
+        flat = {k: state[k] for k in env._state_keys}
+        flat["params"] = {k: state["params", k] for k in env._param_keys}
+        action = torch.rand(n, 2, generator=gen) * 2 - 1
+        _, want = env.task.transition(action, flat, env._difficulty)
+        out, td = env.step_and_maybe_reset(td.set("action", action))
+        for k, v in want.items():
+            assert torch.equal(out["next", k], v), k
+        if _ == 0:
+            assert want["collision"][0]  # row 0: its last slot lies under the truck
+        collided += int(out["next", "collision"].sum())
+        resets += int(out["next", "done"].sum())
+    assert collided >= n // 4 and resets >= collided  # collisions and partial resets happened

@@ -1,10 +1,12 @@
 """``python -m truckrl.bench env``: a quick run within its budget, and one-line option errors."""
 
 import json
+import subprocess
+import sys
 
 import pytest
 
-from tests.conftest import run_cli
+from tests.conftest import ROOT, run_cli
 
 pytestmark = pytest.mark.e2e
 
@@ -20,7 +22,14 @@ def test_quick_run_prints_its_time_and_writes_json(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "args", [["--workers", "0"], ["--envs", "0"], ["--steps", "0"], ["--device", "nope"]]
+    "args",
+    [
+        ["--workers", "0"],
+        ["--envs", "0"],
+        ["--steps", "0"],
+        ["--device", "nope"],
+        ["--peer-envs", "0"],
+    ],
 )
 def test_bad_options_are_one_line_exit_2(args, tmp_path):
     proc = run_cli("bench", "env", *args, "--out", str(tmp_path))
@@ -32,6 +41,53 @@ def test_bad_options_are_one_line_exit_2(args, tmp_path):
 def test_every_option_has_help():
     proc = run_cli("bench", "env", "--help")
     assert proc.returncode == 0
-    for opt in ("--quick", "--envs", "--workers", "--parallel-envs", "--steps", "--compile"):
+    for opt in (
+        "--quick", "--envs", "--workers", "--parallel-envs", "--steps", "--compile",
+        "--scaling", "--eager-max-envs", "--plot", "--peers", "--peer-envs",
+    ):  # fmt: skip
         line = next(x for x in proc.stdout.splitlines() if x.strip().startswith(opt))
         assert len(line.strip()) > len(opt) + 8, opt  # followed by a description
+
+
+def test_scaling_quick_writes_table_json_and_a_three_panel_png(tmp_path):
+    import cv2
+
+    png = tmp_path / "scaling.png"
+    proc = run_cli(
+        "bench", "env", "--scaling", "--quick", "--out", str(tmp_path), "--plot", str(png)
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "env-steps/s scaling" in proc.stdout
+    record = json.loads(next(tmp_path.glob("env-scaling-*.json")).read_text())
+    axes = {(r["axis"], r["value"]) for r in record["rows"]}
+    assert axes == {("trucks", 1), ("trucks", 16), ("trucks", 64), ("beams", 16), ("beams", 32),
+                    ("obstacles", 0), ("obstacles", 4)}  # fmt: skip
+    slots = {r["value"]: r["segment slots"] for r in record["rows"] if r["axis"] == "obstacles"}
+    assert slots == {0: 8, 4: 24}  # 8 curb slots + 4 per obstacle slot
+    assert all(r["steps/s"] > 0 for r in record["rows"])
+    img = cv2.imread(str(png))
+    assert img is not None and img.shape[1] > 2.5 * img.shape[0]  # three panels side by side
+
+
+def test_peers_without_vmas_is_one_line_exit_2(tmp_path):
+    code = (
+        "import sys; sys.modules['vmas'] = None\n"  # as if not installed
+        "from truckrl.bench.__main__ import main\n"
+        f"sys.exit(main(['env', '--peers', '--out', {str(tmp_path)!r}]))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        "error: --peers needs VMAS: pip install 'truckrl[bench]'"
+    ]
+    assert not list(tmp_path.glob("*.json"))
+
+
+def test_peers_quick_side_by_side(tmp_path):
+    pytest.importorskip("vmas")
+    proc = run_cli("bench", "env", "--peers", "--quick", "--out", str(tmp_path))
+    assert proc.returncode == 0, proc.stderr
+    record = json.loads(next(tmp_path.glob("env-peers-*.json")).read_text())
+    sims = [r["simulator"] for r in record["rows"]]
+    assert sims[0].startswith("VMAS") and "TruckEnv" in sims
+    assert record["rows"][0]["x VMAS"] == 1.0 and all(r["steps/s"] > 0 for r in record["rows"])

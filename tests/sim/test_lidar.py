@@ -398,3 +398,46 @@ def test_many_random_scenes_slow():
         segs = grid_rectangles(400, 25, g)
         origin, heading = free_poses(segs, 1, g)
         assert_agree(origin[:, 0], heading[:, 0], segs, None, beam_angles(num_beams, dtype=F64))
+
+
+# --- the eager fast path of the dense scan ---------------------------------------------------
+
+
+def _reference_dense(origin, heading, segments, mask, rel, max_range):
+    """The dense scan as it was written before its eager fast path: to_local, then
+    ray_segment_distance from (0, 0) on the whole batch at once, then the minimum."""
+    from truckrl.sim.geometry import ray_segment_distance, to_local
+
+    ends = to_local(segments.unflatten(-1, (2, 2)).flatten(-3, -2), origin, heading)
+    local = ends.unflatten(-2, (-1, 2)).flatten(-2)
+    zero = torch.zeros((), dtype=local.dtype).expand(2)
+    d = ray_segment_distance(zero, rel.to(local), local, mask)
+    return d.amin(-1).clamp_max(max_range)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, F64])
+def test_dense_fast_path_is_bit_identical_to_ray_segment_distance(dtype):
+    # chunked (more rows than one chunk holds) and in-place: every range must be the same bits
+    # as the plain composition, on scenes with rays through vertices, along segments, crossing
+    # segments, zero-length segments, a sensor on a segment, padding, and nothing in range
+    g = torch.Generator().manual_seed(21)
+    n, e = 700, 24
+    rel = beam_angles(16, dtype=dtype)
+    origin = ((torch.rand(n, 2, generator=g, dtype=F64) - 0.5) * 60).round()  # grid points
+    heading = (torch.randint(0, 8, (n,), generator=g) * (math.pi / 4)).to(F64)  # beams on axes
+    p = ((torch.rand(n, e, 2, generator=g, dtype=F64) - 0.5) * 80).round()
+    q = p + ((torch.rand(n, e, 2, generator=g, dtype=F64) - 0.5) * 30).round()
+    segs = torch.cat((p, q), -1)
+    segs[:, 0, 2:] = segs[:, 0, :2]  # zero-length
+    segs[:, 1] = torch.cat((origin - 3, origin + 3), -1)  # the sensor lies on it (diagonal)
+    segs[:, 2] = torch.cat((origin + 1, origin + 20), -1) * torch.tensor([1.0, 0, 1, 0]) + (
+        origin[:, 1:].repeat(1, 4) * torch.tensor([0.0, 1, 0, 1])
+    )  # along the beam at 0 rad when heading is 0
+    segs[-5:] += 500.0  # nothing in range
+    mask = torch.rand(n, e, generator=g) > 0.3
+    segs, origin, heading = segs.to(dtype), origin.to(dtype), heading.to(dtype)
+    for m in (mask, None):
+        got = lidar_scan(origin, heading, segs, m, rel, MAX_RANGE)
+        want = _reference_dense(origin, heading, segs, m, rel, MAX_RANGE)
+        assert torch.equal(got, want)
+        assert (want < MAX_RANGE).float().mean() > 0.3 and (want == MAX_RANGE).any()

@@ -8,6 +8,17 @@ Measured with a uniformly random policy (``action_spec.rand()``), resets include
 * the paper's layout: 24 worker processes each stepping one truck (``ParallelEnv(24, n=1)``),
   measured in the same run so the ratio is side by side;
 * optionally (``--collector``) ``Collector`` frames/s with the real two-branch policy.
+
+Two other sections replace those rows when asked for (both may be given):
+
+* ``--scaling``: env-steps/s against the number of trucks N (1 ... 65,536), LiDAR beams
+  (16 ... 256 at N = 1,024) and obstacle slots of the scene (``env.task.scene.max_obstacles``:
+  0, 4, 16, 64, i.e. 8 ... 264 segment slots, at N = 1,024), compiled and (up to
+  ``--eager-max-envs``) eager; a table, the JSON record and a PNG of three log-log panels
+  (``--plot``, default ``docs/env_scaling.png``).
+* ``--peers``: VMAS (optional ``bench`` extra) with the closest scenario it can express
+  (:mod:`truckrl.bench.peers`) beside TruckEnv eager and compiled at the same N, measured in
+  the same run, with the ratios.
 """
 
 from __future__ import annotations
@@ -20,9 +31,10 @@ import time
 import torch
 from torchrl.envs import EnvBase, ParallelEnv
 
-from truckrl.bench.report import print_table, write_json
+from truckrl.bench import peers
+from truckrl.bench.report import draw_loglog_panels, print_table, write_json
 from truckrl.env import TruckEnv
-from truckrl.task import NUM_FEATURES, EnvConfig
+from truckrl.task import NUM_FEATURES
 
 TARGET_STEPS_PER_S = 100_000  # issue target on a 2-core CPU, 16 beams
 TARGET_RATIO_VS_PAPER = 30.0  # best config >= 30x the paper layout in the same run
@@ -30,6 +42,15 @@ PAPER_WORKERS = 24  # paper: 24 single-truck worker processes
 
 
 QUICK = {"envs": [1, 256], "parallel_envs": [], "steps": 10, "warmup": 2, "compile": "off"}
+
+#: Sweeps of ``--scaling`` (full, ``--quick``): trucks N, beams R at N_ref, obstacle slots at N_ref.
+SCALING = {
+    "envs": [1, 16, 256, 1024, 4096, 16384, 65536],
+    "beams": [16, 32, 64, 128, 256],
+    "obstacles": [0, 4, 16, 64],
+    "ref_envs": 1024,
+}
+SCALING_QUICK = {"envs": [1, 16, 64], "beams": [16, 32], "obstacles": [0, 4], "ref_envs": 16}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,6 +79,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-paper", action="store_true", help="skip the 24-process paper layout")
     parser.add_argument(
         "--collector", action="store_true", help="also Collector frames/s with the real policy"
+    )
+    parser.add_argument(
+        "--scaling", action="store_true",
+        help="instead of the rows above: steps/s against N, beams and obstacles; table, JSON, PNG",
+    )  # fmt: skip
+    parser.add_argument(
+        "--eager-max-envs", type=int, default=4096,
+        help="--scaling: largest N also measured eager (default 4096)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--plot", default="docs/env_scaling.png", help="--scaling: PNG path (three log-log panels)"
+    )
+    parser.add_argument(
+        "--peers", action="store_true",
+        help="instead of the rows above: VMAS beside TruckEnv at --peer-envs (needs the bench extra)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--peer-envs", type=int, default=1024, help="--peers: N of the side-by-side rows"
     )
     parser.add_argument("--device", default="cpu", help="torch device of the batched rows")
     parser.add_argument("--threads", type=int, help="torch threads in the main process")
@@ -88,13 +127,20 @@ def check_args(args: argparse.Namespace) -> None:
         torch.device(args.device)
     except (RuntimeError, TypeError):
         bad.append(f"--device {args.device!r}: not a torch device")
+    if args.peer_envs < 1:
+        bad.append(f"--peer-envs {args.peer_envs}: must be >= 1")
+    if args.peers and not peers.vmas_available():
+        bad.append(f"--peers needs VMAS: {peers.INSTALL_HINT}")
     if bad:
         print(f"error: {bad[0]}", file=sys.stderr)
         raise SystemExit(2)
 
 
-def _make_env(n: int, compile: bool, device: str, seed: int) -> TruckEnv:
-    return TruckEnv(num_envs=n, device=device, config=EnvConfig(compile=compile), seed=seed)
+def _make_env(
+    n: int, compile: bool, device: str, seed: int, overrides: dict | None = None
+) -> TruckEnv:
+    config = {"compile": compile, **(overrides or {})}
+    return TruckEnv(num_envs=n, device=device, config=config, seed=seed)
 
 
 def steps_per_second(env: EnvBase, steps: int, warmup: int) -> tuple[float, float]:
@@ -117,6 +163,15 @@ def run(args: argparse.Namespace) -> dict:
     t_start = time.perf_counter()
     if args.threads:
         torch.set_num_threads(args.threads)
+    if args.scaling or args.peers:
+        summary = {}
+        if args.scaling:
+            summary["scaling"] = run_scaling(args)
+        if args.peers:
+            summary["peers"] = run_peers(args)
+        summary["wall_s"] = time.perf_counter() - t_start
+        print(f"bench env took {summary['wall_s']:.1f} s" + (" (--quick)" if args.quick else ""))
+        return summary
     modes = {"both": [False, True], "on": [True], "off": [False]}[args.compile]
     rows = []
 
@@ -228,3 +283,119 @@ def _collector_rows(args: argparse.Namespace, compiled: bool) -> list[dict]:
         )
         print(f"  collector n={n} {fps:,.0f} frames/s", flush=True)
     return rows
+
+
+def _modes(args: argparse.Namespace) -> list[bool]:
+    return {"both": [True, False], "on": [True], "off": [False]}[args.compile]
+
+
+def _scaled_steps(args: argparse.Namespace, n: int) -> int:
+    """Timed steps at N trucks: about ``--steps`` x 1,024 trucks of work, 3 .. 4 x ``--steps``."""
+    return int(min(4 * args.steps, max(3, round(args.steps * 1024 / n))))
+
+
+def run_scaling(args: argparse.Namespace) -> dict:
+    """The ``--scaling`` sweep: rows, table, JSON and PNG; returns the JSON payload."""
+    sweep = SCALING_QUICK if args.quick else SCALING
+    ref = sweep["ref_envs"]
+    rows = []
+
+    def measure(axis: str, value: int, n: int, compiled: bool, overrides: dict | None) -> None:
+        if compiled:
+            # Every config is a new graph of the same functions: without a reset, dynamo stops
+            # compiling them after torch._dynamo.config.cache_size_limit (8) graphs and runs
+            # the later rows eagerly.
+            torch._dynamo.reset()
+        env = _make_env(n, compiled, args.device, args.seed, overrides)
+        steps = _scaled_steps(args, n)
+        sps, warm = steps_per_second(env, steps, min(args.warmup, steps))
+        mask = env.get_state()["mask"]
+        rows.append(
+            {
+                "axis": axis,
+                "value": value,
+                "trucks": n,
+                "beams": env.config.lidar.num_beams,
+                "segment slots": mask.shape[-1],
+                "valid segments": float(mask.sum(-1).float().mean()),
+                "compile": compiled,
+                "steps": steps,
+                "steps/s": sps,
+                "warmup_s": warm,
+            }
+        )
+        print(
+            f"  {axis:9s} {value:<6d} N={n:<6d} compile={compiled!s:5s} {sps:12,.0f} steps/s",
+            flush=True,
+        )
+
+    for compiled in _modes(args):
+        for n in sweep["envs"]:
+            if compiled or n <= args.eager_max_envs:
+                measure("trucks", n, n, compiled, None)
+        for r in sweep["beams"]:
+            measure("beams", r, ref, compiled, {"lidar": {"num_beams": r}})
+        for k in sweep["obstacles"]:
+            scene = {"task": {"name": "intersection", "scene": {"max_obstacles": k}}}
+            measure("obstacles", k, ref, compiled, scene)
+    table = print_table("TruckEnv env-steps/s scaling (random policy, resets included)", rows)
+
+    def series(axis: str, x_key: str) -> dict[str, list[tuple[float, float]]]:
+        out = {}
+        for compiled in _modes(args):
+            pts = [
+                (float(r[x_key]), r["steps/s"])
+                for r in rows
+                if r["axis"] == axis and r["compile"] == compiled
+            ]
+            if pts:
+                out["compiled" if compiled else "eager"] = pts
+        return out
+
+    panels = [
+        ("env-steps/s vs trucks N", "trucks N", series("trucks", "trucks")),
+        (f"vs LiDAR beams (N = {ref:,})", "beams R", series("beams", "beams")),
+        (
+            f"vs scene segment slots (N = {ref:,})",
+            "segment slots E",
+            series("obstacles", "segment slots"),
+        ),
+    ]
+    draw_loglog_panels(panels, args.plot)
+    print(f"wrote {args.plot}")
+    payload = {"rows": rows, "table": table, "plot": str(args.plot), "sweep": sweep}
+    payload["args"] = {k: v for k, v in vars(args).items() if not k.startswith("_")}
+    write_json("env-scaling", payload, args.out)
+    return payload
+
+
+def run_peers(args: argparse.Namespace) -> dict:
+    """``--peers``: VMAS and TruckEnv (eager, compiled) at the same N in this run."""
+    n = 16 if args.quick else args.peer_envs
+    steps = _scaled_steps(args, n)
+    warmup = min(args.warmup, steps)
+    rows = []
+    vm = peers.vmas_steps_per_second(n, steps, warmup, args.seed)
+    rows.append({"simulator": "VMAS 1.5 (kinematic bicycle)", "compile": False, "trucks": n, **vm})
+    print(f"  VMAS      N={n:<6d} {vm['steps/s']:12,.0f} steps/s", flush=True)
+    for compiled in sorted(_modes(args)):
+        if compiled:
+            torch._dynamo.reset()  # a fresh graph, as in the --scaling rows
+        env = _make_env(n, compiled, args.device, args.seed)
+        sps, warm = steps_per_second(env, steps, warmup)
+        rows.append(
+            {"simulator": "TruckEnv", "compile": compiled, "trucks": n, "steps/s": sps,
+             "warmup_s": warm}
+        )  # fmt: skip
+        print(f"  TruckEnv  N={n:<6d} compile={compiled!s:5s} {sps:12,.0f} steps/s", flush=True)
+    for r in rows:
+        r["x VMAS"] = r["steps/s"] / vm["steps/s"]
+    table = print_table(
+        f"TruckEnv vs VMAS at N = {n:,} (random actions, resets included, same run)",
+        rows,
+        ["simulator", "compile", "trucks", "steps/s", "x VMAS", "warmup_s"],
+    )
+    payload = {"rows": rows, "table": table, "vmas_scene": peers.__doc__}
+    payload["args"] = {k: v for k, v in vars(args).items() if not k.startswith("_")}
+    write_json("env-peers", payload, args.out)
+    return payload

@@ -285,22 +285,25 @@ def segment_box_overlap(
     dx, dy = ends[..., 1::2, 0] - x0, ends[..., 1::2, 1] - y0
     eps = 1e-6  # [m] closed-set slack, as in segments_intersect
 
-    def slab(p0: Tensor, d: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tensor]:
-        # parameter interval [t_in, t_out] of the segment inside lo - eps <= p <= hi + eps
+    def slab(p0: Tensor, d: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        # Parameter interval [t_in, t_out] of the segment inside lo - eps <= p <= hi + eps, and
+        # whether a segment parallel to the slab lies outside it (then there is no interval).
+        # A parallel segment inside gets the neutral (-inf, +inf); masked_fill writes the same
+        # values as a where against scalars, with fewer and cheaper passes.
         lo, hi = lo.unsqueeze(-1) - eps, hi.unsqueeze(-1) + eps
         flat = d.abs() <= 1e-9
-        safe = torch.where(flat, torch.ones_like(d), d)
+        safe = d.masked_fill(flat, 1.0)
         t1, t2 = (lo - p0) / safe, (hi - p0) / safe
-        inside = (p0 >= lo) & (p0 <= hi)
-        t_in = torch.where(flat, torch.where(inside, -math.inf, math.inf), torch.minimum(t1, t2))
-        t_out = torch.where(flat, torch.where(inside, math.inf, -math.inf), torch.maximum(t1, t2))
-        return t_in, t_out
+        t_in = torch.minimum(t1, t2).masked_fill_(flat, -math.inf)
+        t_out = torch.maximum(t1, t2).masked_fill_(flat, math.inf)
+        outside = flat & ~((p0 >= lo) & (p0 <= hi))
+        return t_in, t_out, outside
 
-    tx_in, tx_out = slab(x0, dx, -rear, front)
-    ty_in, ty_out = slab(y0, dy, -half_width, half_width)
-    t_in = torch.maximum(torch.maximum(tx_in, ty_in), torch.zeros_like(tx_in))
-    t_out = torch.minimum(torch.minimum(tx_out, ty_out), torch.ones_like(tx_out))
-    hit = t_in <= t_out
+    tx_in, tx_out, x_out = slab(x0, dx, -rear, front)
+    ty_in, ty_out, y_out = slab(y0, dy, -half_width, half_width)
+    t_in = torch.maximum(tx_in, ty_in).clamp_min_(0.0)
+    t_out = torch.minimum(tx_out, ty_out).clamp_max_(1.0)
+    hit = (t_in <= t_out) & ~(x_out | y_out)
     if mask is not None:
         hit = hit & mask
     return hit

@@ -35,6 +35,7 @@ from truckrl.sim.geometry import (
     RAY_TOLERANCE_ULPS,
     point_segment_distance,
     ray_segment_distance,
+    ray_tolerance,
     to_local,
     wrap_angle,
 )
@@ -343,13 +344,77 @@ def lidar_scan(
     ends = to_local(segments.unflatten(-1, (2, 2)).flatten(-3, -2), origin, heading)
     local = ends.unflatten(-2, (-1, 2)).flatten(-2)  # [..., E, 4]
     if method == "dense":
-        zero = torch.zeros((), dtype=local.dtype, device=local.device).expand(2)
-        d = ray_segment_distance(zero, rel_angles.to(local), local, mask)  # [..., R, E]
-        if d.shape[-1] == 0:
-            return torch.full(d.shape[:-1], float(max_range), dtype=d.dtype, device=d.device)
-        return d.amin(-1).clamp_max(max_range)
+        rel = rel_angles.to(local)
+        if local.shape[-2] == 0:
+            shape = (*local.shape[:-2], rel.shape[-1])
+            return torch.full(shape, float(max_range), dtype=local.dtype, device=local.device)
+        chunk = _dense_chunk(local, rel.shape[-1])
+        if chunk is None:
+            return _dense_scan(local, mask, rel, max_range)
+        # Eager: the [..., R, E] temporaries of a big batch are MBs each, and allocating and
+        # faulting them in costs more than the arithmetic. Rows in chunks keep them in cache;
+        # every row's ops are the same, so the result is bit-identical.
+        flat = local.reshape(-1, *local.shape[-2:])
+        fmask = None if mask is None else mask.reshape(-1, mask.shape[-1])
+        parts = [
+            _dense_scan(
+                flat[i : i + chunk], None if fmask is None else fmask[i : i + chunk], rel, max_range
+            )
+            for i in range(0, flat.shape[0], chunk)
+        ]
+        return torch.cat(parts).reshape(*local.shape[:-2], rel.shape[-1])
     width = _span_width(rel_angles)
     return _span_scan(local, mask, rel_angles.to(local), max_range, width)
+
+
+#: Pairs (rows x beams x segments) per chunk of the eager dense scan: ~256 KiB float32 temporaries.
+DENSE_CHUNK_PAIRS = 1 << 16
+
+
+def _dense_chunk(local: Tensor, num_beams: int) -> int | None:
+    """Rows per chunk of the eager dense scan on the CPU, or ``None`` for one pass (compiled,
+    small, or on an accelerator, where each chunk would cost its own kernel launches)."""
+    if torch.compiler.is_compiling() or local.dim() < 3 or local.device.type != "cpu":
+        return None
+    rows = local.shape[:-2].numel()
+    chunk = max(1, DENSE_CHUNK_PAIRS // max(1, num_beams * local.shape[-2]))
+    return None if chunk >= rows else chunk
+
+
+def _dense_scan(local: Tensor, mask: Tensor | None, rel: Tensor, max_range: float) -> Tensor:
+    """Dense form of :func:`lidar_scan` on sensor-frame segments ``local [..., E, 4]`` (E > 0).
+
+    Under ``torch.compile`` (fused anyway) it is :func:`ray_segment_distance` from the origin.
+    Eager, the same arithmetic written for the origin at ``(0, 0)`` (``x - 0`` is ``x``, bit for
+    bit) with in-place passes and the padding folded into the hit test: every value that can
+    reach the minimum is computed by the same float operations, so the ranges are identical
+    (tests/sim/test_lidar.py checks it against ray_segment_distance on adversarial scenes).
+    """
+    if torch.compiler.is_compiling() or local.requires_grad:
+        zero = torch.zeros((), dtype=local.dtype, device=local.device).expand(2)
+        d = ray_segment_distance(zero, rel, local, mask)  # [..., R, E]
+        return d.amin(-1).clamp_max(max_range)
+    eps = torch.finfo(local.dtype).eps
+    dx = torch.cos(rel).unsqueeze(-1)  # [R, 1]
+    dy = torch.sin(rel).unsqueeze(-1)
+    p0x, p0y, p1x, p1y = local.unsqueeze(-3).unbind(-1)  # [..., 1, E], ends relative to origin
+    tol0, tol1 = ray_tolerance(p0x, p0y, eps), ray_tolerance(p1x, p1y, eps)
+    s0 = (dx * p0y).sub_(dy * p0x)  # [..., R, E] signed distances to the beam's line
+    s1 = (dx * p1y).sub_(dy * p1x)
+    t0 = (dx * p0x).add_(dy * p0y)  # ranges along the beam
+    t1 = (dx * p1x).add_(dy * p1y)
+    in0, in1 = s0.abs() <= tol0, s1.abs() <= tol1
+    crosses = (s0 * s1) <= 0.0
+    u = torch.where(crosses, (s0 / (s0 - s1)).clamp_(0.0, 1.0), (~in0).to(s0.dtype))
+    t = (t1 - t0).mul_(u).add_(t0)  # t0 + u * (t1 - t0)
+    along = in0 & in1
+    t_near = torch.where(along, torch.minimum(t0, t1), t)
+    t_far = torch.where(along, torch.maximum(t0, t1), t)
+    hit = (crosses | in0).logical_or_(in1).logical_and_(t_far >= -torch.maximum(tol0, tol1))
+    if mask is not None:
+        hit.logical_and_(mask.unsqueeze(-2))
+    dist = t_near.clamp_min_(0.0).masked_fill_(~hit, math.inf)
+    return dist.amin(-1).clamp_max(max_range)
 
 
 #: Gather widths of the span form by beam-angle tensor: ``id -> (weakref, version, width)``.

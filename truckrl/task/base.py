@@ -304,6 +304,10 @@ class Task:
 
         Non-finite actions are replaced by 0 before they touch the state and flagged.
 
+        ``s["segments"]`` / ``s["mask"]`` are read as a set (LiDAR minimum, collision any):
+        :class:`~truckrl.env.TruckEnv` passes them valid-first with trailing padding cut
+        (``[N, W <= E, 4]``), which gives the same outputs bit for bit.
+
         Args:
             action: ``[N, 2]`` raw actions (may hold NaN/inf).
             s: state (module doc), ``params`` as a mapping.
