@@ -128,7 +128,7 @@ class LidarEncoder(nn.Module):
         if not all(self._dense):
             return self.net(lidar.unsqueeze(1)).flatten(1)
         x = lidar
-        for i, dense in enumerate(self._dense):
+        for i in range(len(self._dense)):
             conv: nn.Conv1d = self.net[2 * i]  # type: ignore[assignment]
             index: Tensor = getattr(self, f"_index{i}")
             weight = torch.cat([conv.weight.new_zeros(1), conv.weight.flatten()])[index]
