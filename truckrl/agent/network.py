@@ -62,8 +62,12 @@ def circular_conv_index(
     Returns:
         ``(index [in_channels * length, out_channels * L_out] long, L_out)``: ``index`` is
         ``1 + (flat position in weight)`` or 0 for a structural zero, so
-        ``cat([0], weight.flatten())[index]`` is ``M``. With ``length < kernel_size`` several
-        taps of one output wrap onto the same input; their weights add, as in the convolution.
+        ``cat([0], weight.flatten())[index]`` is ``M``.
+
+    Raises:
+        ValueError: two taps of one output wrap onto the same input (``length < kernel_size``);
+            their weights would have to add, which one index per entry cannot express, so
+            :class:`LidarEncoder` then calls the convolution itself.
     """
     pad = kernel_size // 2
     l_out = conv_out_len(length, kernel_size, stride)
