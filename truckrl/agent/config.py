@@ -138,12 +138,6 @@ class PPOConfig:
     normalize_advantage: bool = param(
         True, unit="-", doc="standardise advantages over the whole batch", source="RSL-RL"
     )
-    compile: bool = param(
-        False,
-        unit="-",
-        doc="torch.compile the shared trunk inside the loss (one graph for the fixed minibatch "
-        "size, a few seconds once; ~10 % faster forward and backward on a CPU)",
-    )
     loss_critic_type: str = param(
         "l2",
         choices=("l2", "l1", "smooth_l1"),

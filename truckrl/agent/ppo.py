@@ -15,7 +15,6 @@ from collections.abc import Iterator
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictModule
 from torch import Tensor
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
@@ -130,23 +129,6 @@ def _continues(batch: TensorDictBase, nxt: TensorDictBase, ends: Tensor) -> bool
     return bool((ok | same).all())
 
 
-def _loss_actor(ac: ActorCritic, compile: bool) -> ProbabilisticTensorDictSequential:
-    """The actor the loss runs: ``ac.actor``, or with ``compile`` the same modules with the
-    trunk's forward ``torch.compile``'d (``dynamic=False``: every minibatch has the same size).
-
-    The compiled wrapper holds the very same parameters, so the optimizer, the checkpoints and
-    the collectors' eager policy see one model. Only the loss gets the compiled trunk: the
-    collector and GAE call it on batches of other, varying sizes, each a new graph.
-    """
-    if not compile:
-        return ac.actor
-    trunk, *heads = ac.actor.module
-    fast = TensorDictModule(
-        torch.compile(trunk.module, dynamic=False), in_keys=trunk.in_keys, out_keys=trunk.out_keys
-    )
-    return ProbabilisticTensorDictSequential(fast, *heads)
-
-
 class PPO:
     """One PPO learner: call :meth:`update` with each collected batch.
 
@@ -164,7 +146,7 @@ class PPO:
         # differentiable "hidden", so the shared trunk runs once per minibatch and still gets
         # gradients from both losses.
         self.loss = _ClipPPOLoss(
-            _loss_actor(ac, cfg.compile),
+            ac.actor,
             ac.value_head,
             clip_epsilon=cfg.clip_epsilon,
             entropy_coeff=cfg.entropy_coeff,
