@@ -1,4 +1,4 @@
-"""Slow learning checks: the default config learns, within a fixed frame budget.
+"""Slow learning checks: each task's preset learns, within a fixed frame budget.
 
 Deselected by default (``-m slow``): each trains for minutes. Run with
 ``python -m pytest -m slow tests/test_learning.py``.
@@ -17,19 +17,35 @@ from truckrl.agent.checkpoint import load_training_state
 #: budget leaves about 1.5x for seed and machine differences.
 FRAMES_TO_DIFFICULTY_2 = 4_000_000
 
+#: Frames in which ``python -m truckrl.train experiment=dock`` (reverse into a bay, PPO from
+#: scratch) must reach difficulty 2 (4.8 m, 45 deg, start curriculum at its widest pull-out).
+#: Measured: 4.00 M frames (seed 0, 1 torch thread, 3.5 min on the 2-core machine); the budget
+#: leaves 1.5x for seed and machine differences. Task uturn has no such test yet: it does not
+#: learn from scratch (README, "Reversing").
+DOCK_FRAMES_TO_DIFFICULTY_2 = 6_000_000
+
 
 @pytest.mark.slow
-def test_the_default_config_reaches_difficulty_2_in_a_fixed_frame_budget(tmp_path):
+@pytest.mark.parametrize(
+    ("overrides", "budget"),
+    [
+        pytest.param((), FRAMES_TO_DIFFICULTY_2, id="default"),
+        pytest.param(("experiment=dock",), DOCK_FRAMES_TO_DIFFICULTY_2, id="dock"),
+    ],
+)
+def test_the_preset_reaches_difficulty_2_in_a_fixed_frame_budget(tmp_path, overrides, budget):
     run = tmp_path / "run"
     proc = run_cli(
         "train",
-        f"total_frames={FRAMES_TO_DIFFICULTY_2}",
+        *overrides,
+        f"total_frames={budget}",
         "stop_difficulty=2",
         f"hydra.run.dir={run}",
         "log.video_interval=0",
+        "log.eval_interval_min=0",  # no held-out checks: frames only
         timeout=1800,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     state = load_training_state(run)
     assert state["curriculum"]["difficulty"] >= 2.0, state["counters"]
-    assert state["counters"]["frames"] <= FRAMES_TO_DIFFICULTY_2 + 65_536  # one iteration over
+    assert state["counters"]["frames"] <= budget + 65_536  # one iteration over
