@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
@@ -15,6 +16,7 @@ from truckrl.task.config import EnvConfig
 from truckrl.task.uturn import UTurnTask, route_to_go, turning_point
 
 UTURN = {"task": {"name": "uturn"}}
+TOL = 1e-3  # [m] float32 round-off at coordinates of O(100 m)
 
 
 def test_check_env_specs():
@@ -144,3 +146,86 @@ def test_hand_built_state_gets_a_turning_point():
     env.set_state(state)
     mid = 0.5 * (state["pose"][:, :2] + state["goal"][:, :2])
     assert torch.allclose(env.get_state()["turn_point"], mid)
+
+
+# ----------------------------------------------------------------------------- start curriculum
+def curriculum_starts(difficulty: float, n: int = 10_000, seed: int = 7, **start):
+    """``n`` default scenes after ``on_reset`` at ``difficulty``: (task, state before, after)."""
+    cfg = EnvConfig(task={"name": "uturn", "start": start})
+    task = UTurnTask(cfg)
+    before = task.sample(n, torch.Generator().manual_seed(seed), torch.device("cpu"))
+    after = task.on_reset(before.clone(), torch.full((n,), difficulty))
+    return task, before, after
+
+
+@pytest.mark.parametrize(
+    "difficulty, shares",
+    # u = 2 d / 4; kind = branch where u + r < 1, past where u + r < 2, road otherwise
+    [(0.0, (0.0, 0.0, 1.0)), (1.0, (0.0, 0.5, 0.5)), (2.0, (0.0, 1.0, 0.0)),
+     (3.0, (0.5, 0.5, 0.0)), (4.0, (1.0, 0.0, 0.0)), (9.0, (1.0, 0.0, 0.0))],
+)
+def test_start_kinds_follow_the_difficulty(difficulty, shares):
+    """Shares of (road, past branch, in branch) starts at each difficulty (stage_difficulty
+    (0, 4)), from the per-episode stage draw; a road start keeps the generator's pose."""
+    _, before, after = curriculum_starts(difficulty)
+    kind = after["route", "start_kind"]
+    got = [(kind == k).float().mean().item() for k in (0.0, 1.0, 2.0)]
+    assert got == pytest.approx(shares, abs=0.02)
+    road = kind == 0.0
+    assert torch.equal(after["pose"][road], before["pose"][road])
+    assert (after["speed"] == 0).all() and (after["pose"][:, 3] == 0).all()
+    # the errors were recomputed for the moved starts
+    task = UTurnTask(EnvConfig(task={"name": "uturn"}))
+    err = task.errors({k: after[k] for k in ("pose", "goal")})
+    for k, v in err.items():
+        assert torch.allclose(after[k], v)
+
+
+def test_curriculum_off_and_hand_built_states_keep_the_start():
+    _, before, after = curriculum_starts(0.0, n=100, enabled=False)
+    assert torch.equal(after["pose"], before["pose"])
+    task = UTurnTask(EnvConfig(task=UTURN["task"]))
+    state = before.clone()
+    del state["route"]
+    assert torch.equal(task.on_reset(state, torch.zeros(100))["pose"], before["pose"])
+
+
+@pytest.mark.parametrize("difficulty, kind", [(0.0, 2.0), (2.0, 1.0)])
+def test_moved_starts_are_free_and_where_they_should_be(difficulty, kind):
+    """On 10,000 scenes, checked with the independent geometry of the scene tests (separating
+    axes on rectangles built from the parameters): the moved truck is clear of every segment by
+    more than 5 cm, and the simulator agrees. In the branch: every corner lies deeper than the
+    branch-side curb line, the truck points out along the branch axis. Past the branch: every
+    corner lies beyond the mouth's far chamfer, the truck faces the start heading."""
+    from tests.sim.test_uturn_scene import footprint, local, sat_gap
+    from truckrl.sim.collision import contour_collides
+    from truckrl.sim.vehicle import vehicle_outline
+
+    n = 10_000
+    _, before, after = curriculum_starts(difficulty, n=n)
+    assert (after["route", "start_kind"] == kind).all()
+    p = {k: after["params", k].double().numpy() for k in after["params"].keys()}
+    info = {k: after["route", k].double().numpy() for k in after["route"].keys()}
+    pose = after["pose"].double().numpy()
+    seg, mask = after["segments"].double().numpy(), after["mask"].numpy()
+    corners = []
+    for rect in footprint(pose, p):
+        gap = np.where(mask, sat_gap(rect, seg), np.inf)
+        assert gap.min() > 0.05, f"a moved start comes within {gap.min():.3f} m of a segment"
+        corners.append(local(rect, info))
+    params = {k: after["params", k] for k in after["params"].keys()}
+    outline = vehicle_outline(after["pose"], params)
+    assert not contour_collides(outline, after["segments"], after["mask"]).any()
+    q = np.concatenate(corners, 1)  # [n, 8, 2] in the scene frame
+    rel = (pose[:, 2] - info["road_heading"] + np.pi) % (2 * np.pi) - np.pi
+    side, a = info["branch_side"], info["branch_angle"]
+    if kind == 2.0:
+        depth = side[:, None] * q[..., 1] - 0.5 * info["road_width"][:, None]
+        assert (depth > 0.0).all(), "an in-branch start sticks out into the road"
+        out = np.arctan2(-side * np.sin(a), -np.cos(a))
+        assert np.allclose(np.cos(rel - out), 1.0, atol=1e-5)
+    else:
+        h = 0.5 * info["branch_width"] / np.sin(a)
+        assert (q[..., 0] > (h + info["mouth_chamfer"])[:, None] - TOL).all()
+        assert (np.abs(q[..., 1]) < 0.5 * info["road_width"][:, None]).all()
+        assert np.allclose(np.cos(rel), 1.0, atol=1e-5)

@@ -74,8 +74,12 @@ line, perpendicular to the road), ``branch_side`` (+1 left, -1 right), ``branch_
 rear axles, straight), ``dead_end`` (1.0 / 0.0), ``turn_radius`` [m] (``R``), ``forward_width``
 [m] (``2 R + w_t``), ``truck_length`` [m] (``L``), ``start_gap`` [m], ``branch_left`` (1.0 left,
 0.0 right: ``branch_side`` as a category code), and the local frame: ``mouth_x``, ``mouth_y`` [m]
-(the mouth centre) and ``road_heading`` [rad] (the start's heading, = ``frame``). Recording them
-draws no random numbers.
+(the mouth centre) and ``road_heading`` [rad] (the start's heading, = ``frame``),
+``mouth_chamfer`` [m] (``c``), ``x_far`` [m] (local x where the road ends: the dead-end wall, or
+``half_extent``). Recording them draws no random numbers. The start curriculum's keys
+(:meth:`truckrl.task.uturn.UTurnTask.on_reset`): ``start_kind`` (:data:`START_ROAD` as
+generated), ``stage_draw`` and ``place_draw`` (uniform in [0, 1), drawn after everything else so
+the scenes do not depend on them).
 """
 
 from __future__ import annotations
@@ -112,7 +116,17 @@ INFO_KEYS: tuple[str, ...] = (
     "mouth_x",
     "mouth_y",
     "road_heading",
+    "mouth_chamfer",
+    "x_far",
+    "start_kind",
+    "stage_draw",
+    "place_draw",
 )
+
+#: ``info["start_kind"]`` codes: the generator's start on the road before the branch, and the two
+#: later points of the manoeuvre the start curriculum may move it to
+#: (:meth:`truckrl.task.uturn.UTurnTask.on_reset`).
+START_ROAD, START_PAST, START_BRANCH = 0.0, 1.0, 2.0
 
 
 def _metres(default: tuple[float, float], doc: str, hi: float = 1000.0):
@@ -382,5 +396,14 @@ def generate_uturn_scenes(
         "mouth_y": centre[:, 1],
         "road_heading": heading,
     }
+    # drawn last, so that every earlier draw (and so every scene) is as before these keys existed
+    late = torch.rand(n, 2, generator=generator, device=dev)
+    info.update(
+        mouth_chamfer=chamfer,
+        x_far=x_far,
+        start_kind=torch.full_like(half, START_ROAD),
+        stage_draw=late[:, 0],
+        place_draw=late[:, 1],
+    )
     frame = torch.cat((centre, heading[:, None]), -1)
     return UTurnSceneBatch(segments, mask, kind, start, goal, frame, info)

@@ -46,9 +46,16 @@ from typing import TYPE_CHECKING, Any
 import torch
 from torch import Tensor
 
-from truckrl.sim.geometry import rotate
-from truckrl.sim.uturn_scene import INFO_KEYS, UTurnSceneConfig, generate_uturn_scenes
+from truckrl.sim.geometry import rotate, wrap_angle
+from truckrl.sim.uturn_scene import (
+    INFO_KEYS,
+    START_BRANCH,
+    START_PAST,
+    UTurnSceneConfig,
+    generate_uturn_scenes,
+)
 from truckrl.sim.validation import param, validate
+from truckrl.sim.vehicle import truck_extents
 from truckrl.task.base import Task
 from truckrl.task.config import TaskConfig
 from truckrl.task.intersection import IntersectionTask, pose_errors, pose_success
@@ -96,12 +103,48 @@ class UTurnRewardConfig:
 
 
 @dataclass
+class UTurnStartConfig:
+    """Start curriculum (``env.task.start.*``; :meth:`UTurnTask.on_reset`): early in training the
+    truck starts part-way through the manoeuvre, reversed into the branch or pulled past it."""
+
+    enabled: bool = param(True, doc="false: every episode starts where the generator put it")
+    stage_difficulty: tuple[float, float] = param(
+        (0.0, 4.0),
+        lo=0.0,
+        hi=30.0,
+        unit="-",
+        doc="difficulties over which starts move from in the branch (all, at the first) via "
+        "past the branch to the generator's road start (all, from the second on); linear between",
+    )
+    branch_end_gap: tuple[float, float] = param(
+        (0.5, 2.0),
+        lo=0.0,
+        hi=50.0,
+        unit="m",
+        doc="in-branch start: the trailer's rear corners this far short of the branch end wall "
+        "(drawn per episode)",
+    )
+    past_gap: tuple[float, float] = param(
+        (1.0, 6.0),
+        lo=0.0,
+        hi=100.0,
+        unit="m",
+        doc="past-the-branch start: the trailer rear this far beyond the mouth's far chamfer "
+        "(drawn per episode; at most the room before a dead end less 1 m)",
+    )
+
+    def __post_init__(self) -> None:
+        validate(self, "env.task.start")
+
+
+@dataclass
 class UTurnConfig(TaskConfig):
-    """Config of the uturn task: scene rules and reward weights."""
+    """Config of the uturn task: scene rules, reward weights and the start curriculum."""
 
     name: str = param("uturn", choices=("uturn",), doc="task module")
     scene: UTurnSceneConfig = field(default_factory=UTurnSceneConfig)
     reward: UTurnRewardConfig = field(default_factory=UTurnRewardConfig)
+    start: UTurnStartConfig = field(default_factory=UTurnStartConfig)
 
     def __post_init__(self) -> None:
         validate(self, "env.task")
@@ -141,6 +184,7 @@ class UTurnTask(Task):
     )
     num_extras = 2
     category_dims = (
+        CategoryDim("start", "start_kind", names=("road", "past branch", "in branch")),
         CategoryDim("branch side", "branch_left", names=("right", "left")),
         CategoryDim("dead end", "dead_end", names=("open road", "dead end")),
         CategoryDim("road width [m]", "road_width", edges=(9.0, 10.0, 11.0, 12.0)),
@@ -190,6 +234,75 @@ class UTurnTask(Task):
                 )
             else:
                 state["turn_point"] = 0.5 * (state["pose"][:, :2] + state["goal"][:, :2])
+        return state
+
+    def on_reset(self, state: TensorDict, difficulty: Tensor) -> TensorDict:
+        """The start curriculum (``env.task.start``): each episode's start kind follows from its
+        difficulty ``d`` and its ``stage_draw`` ``r``. With ``u = 2 clamp((d - d0) / (d1 - d0),
+        0, 1)`` (``stage_difficulty = (d0, d1)``) the truck starts
+
+        * **in the branch** where ``u + r < 1``: reversed in along the branch axis, facing out,
+          the trailer's rear corners ``branch_end_gap`` short of the end wall (less where the
+          front corners would otherwise stick out of the branch);
+        * **past the branch** where ``1 <= u + r < 2``: on the road centreline facing the start
+          heading, the trailer rear ``past_gap`` beyond the mouth's far chamfer (and the front
+          bumper at least 1 m short of a dead end);
+        * **on the road** (the generator's start) otherwise.
+
+        Both moved starts are at rest, articulation 0, and collision-free by construction (the
+        truck straight on the branch axis with ``branch_side_clearance`` each side; on the
+        straight road beyond the mouth, the road wider than the truck), checked on 10,000 scenes
+        by the tests. ``start_heading`` (route shaping's ``theta_0``) keeps the road heading,
+        so the shaping stays one potential for every start. A state without the curriculum's
+        metadata (built by hand) is returned unchanged.
+        """
+        cur = self.cfg.task.start
+        if not cur.enabled or INFO_STATE_KEY not in state.keys():
+            return state
+        info = state[INFO_STATE_KEY]
+        if "stage_draw" not in info.keys():
+            return state
+        pose = state["pose"]
+        d = difficulty.to(pose.dtype)
+        d0, d1 = cur.stage_difficulty
+        u = 2.0 * ((d - d0) / (d1 - d0)).clamp(0.0, 1.0) if d1 > d0 else 2.0 * (d >= d0).to(d)
+        v = u + info["stage_draw"]
+        in_branch, past = v < 1.0, (v >= 1.0) & (v < 2.0)
+
+        front, rear, half_w = truck_extents(state["params"])
+        a, side, half = info["branch_angle"], info["branch_side"], 0.5 * info["road_width"]
+        sin_a, cos_a = a.sin(), a.cos()
+        place = info["place_draw"]
+        # in the branch: the rear-centre's depth from the curb line leaves end_gap to the end
+        # wall at the rear corners (the end wall runs along the road, skew to the axis by
+        # pi/2 - a, so a corner reaches half_w |cot a| deeper than the centre)
+        g0, g1 = cur.branch_end_gap
+        skew = half_w * (cos_a / sin_a).abs()
+        depth = info["branch_depth"] - (g0 + (g1 - g0) * place) - skew
+        t = depth / sin_a - rear  # rear axle along the branch axis from the mouth centre
+        # ... but the front corners stay beyond the curb line (a gap drawn too wide shrinks)
+        t = torch.maximum(t, front + skew / sin_a)
+        branch_pose = torch.stack(
+            (t * cos_a, side * (half + t * sin_a), torch.atan2(-side * sin_a, -cos_a)), -1
+        )
+        # past the branch: the trailer rear gap beyond the far chamfer's foot on the curb
+        h = 0.5 * info["branch_width"] / sin_a
+        rear_x = h + info["mouth_chamfer"]
+        p0, p1 = cur.past_gap
+        room = info["x_far"] - rear_x - (front + rear) - 1.0
+        gap = torch.minimum(p0 + (p1 - p0) * place, room).clamp_min(0.0)
+        zero = torch.zeros_like(gap)
+        past_pose = torch.stack((rear_x + gap + rear, zero, zero), -1)
+
+        local = torch.where(in_branch[:, None], branch_pose, past_pose)
+        heading = info["road_heading"]
+        xy = rotate(local[:, :2], heading) + torch.stack((info["mouth_x"], info["mouth_y"]), -1)
+        moved = torch.cat((xy, wrap_angle(local[:, 2:] + heading[:, None]), zero[:, None]), -1)
+        move = in_branch | past
+        state["pose"] = torch.where(move[:, None], moved, pose)
+        state.update(self.errors(state))
+        kind = torch.where(in_branch, START_BRANCH, START_PAST)
+        info["start_kind"] = torch.where(move, kind.to(info["start_kind"]), info["start_kind"])
         return state
 
     def errors(self, s: dict[str, Any]) -> dict[str, Tensor]:
