@@ -158,23 +158,28 @@ def curriculum_starts(difficulty: float, n: int = 10_000, seed: int = 7, **start
     return task, before, after
 
 
-@pytest.mark.parametrize(
-    "difficulty, shares",
-    # u = 2 d / 4; kind = branch where u + r < 1, past where u + r < 2, road otherwise
-    [(0.0, (0.0, 0.0, 1.0)), (1.0, (0.0, 0.5, 0.5)), (2.0, (0.0, 1.0, 0.0)),
-     (3.0, (0.5, 0.5, 0.0)), (4.0, (1.0, 0.0, 0.0)), (9.0, (1.0, 0.0, 0.0))],
-)
-def test_start_kinds_follow_the_difficulty(difficulty, shares):
-    """Shares of (road, past branch, in branch) starts at each difficulty (stage_difficulty
-    (0, 4)), from the per-episode stage draw; a road start keeps the generator's pose."""
+@pytest.mark.parametrize("difficulty", [0.0, 1.0, 2.0, 3.0, 4.0, 9.0])
+def test_start_kinds_follow_the_difficulty(difficulty):
+    """With stage_difficulty (0, 4): p = d / 4, z = 2 p + r (r the stage draw); z >= 2 keeps the
+    generator's road start, z < 2 starts on the reverse path at sigma >= 1 - z / 2 (further on
+    only where the drawn point is not free; rarely). Moved starts are at rest, their errors
+    recomputed."""
     _, before, after = curriculum_starts(difficulty)
-    kind = after["route", "start_kind"]
-    got = [(kind == k).float().mean().item() for k in (0.0, 1.0, 2.0)]
-    assert got == pytest.approx(shares, abs=0.02)
-    road = kind == 0.0
+    r = before["route", "stage_draw"]
+    z = 2.0 * min(difficulty / 4.0, 1.0) + r
+    road = after["route", "start_kind"] == 0.0
+    assert torch.equal(road, z >= 2.0)
+    assert road.float().mean().item() == pytest.approx(
+        max(0.0, 2 * min(difficulty / 4, 1) - 1), abs=0.02
+    )
     assert torch.equal(after["pose"][road], before["pose"][road])
-    assert (after["speed"] == 0).all() and (after["pose"][:, 3] == 0).all()
-    # the errors were recomputed for the moved starts
+    sigma = after["route", "start_sigma"]
+    assert (sigma[road] == -1.0).all()
+    drawn = 1.0 - 0.5 * z[~road]
+    assert (sigma[~road] >= drawn - 1e-5).all() and (sigma[~road] <= 1.0).all()
+    if (~road).any():
+        assert (sigma[~road] > drawn + 1e-5).float().mean().item() < 0.3
+    assert (after["speed"] == 0).all()
     task = UTurnTask(EnvConfig(task={"name": "uturn"}))
     err = task.errors({k: after[k] for k in ("pose", "goal")})
     for k, v in err.items():
@@ -190,42 +195,75 @@ def test_curriculum_off_and_hand_built_states_keep_the_start():
     assert torch.equal(task.on_reset(state, torch.zeros(100))["pose"], before["pose"])
 
 
-@pytest.mark.parametrize("difficulty, kind", [(0.0, 2.0), (2.0, 1.0)])
-def test_moved_starts_are_free_and_where_they_should_be(difficulty, kind):
-    """On 10,000 scenes, checked with the independent geometry of the scene tests (separating
-    axes on rectangles built from the parameters): the moved truck is clear of every segment by
-    more than 5 cm, and the simulator agrees. In the branch: every corner lies deeper than the
-    branch-side curb line, the truck points out along the branch axis. Past the branch: every
-    corner lies beyond the mouth's far chamfer, the truck faces the start heading."""
-    from tests.sim.test_uturn_scene import footprint, local, sat_gap
-    from truckrl.sim.collision import contour_collides
-    from truckrl.sim.vehicle import vehicle_outline
+def articulated_footprint(pose: np.ndarray, p: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Tractor and trailer rectangles ``[n, 4, 2]`` at any articulation, from the parameters
+    alone: the tractor as in the scene tests; the trailer about its kingpin (``kingpin_offset``
+    behind the tractor rear axle) along ``theta + phi``."""
+    from tests.sim.test_uturn_scene import footprint
 
-    n = 10_000
-    _, before, after = curriculum_starts(difficulty, n=n)
-    assert (after["route", "start_kind"] == kind).all()
+    tractor, _ = footprint(pose, p)
+    x, y, th, phi = pose.T
+    psi = th + phi
+    k = np.stack((x - p["kingpin_offset"] * np.cos(th), y - p["kingpin_offset"] * np.sin(th)), -1)
+    u = np.stack((np.cos(psi), np.sin(psi)), -1)
+    v = np.stack((-np.sin(psi), np.cos(psi)), -1)
+    ahead = p["trailer_front_overhang"]
+    behind = p["trailer_wheelbase"] + p["trailer_rear_overhang"]
+    half = 0.5 * p["trailer_width"]
+    trailer = np.stack(
+        [
+            k + a[:, None] * u + sgn * half[:, None] * v
+            for a, sgn in ((ahead, -1), (ahead, 1), (-behind, 1), (-behind, -1))
+        ],
+        1,
+    )
+    return tractor, trailer
+
+
+@pytest.mark.parametrize("difficulty", [0.0, 1.0, 2.0, 3.0])
+def test_path_starts_are_free_and_on_the_manoeuvre(difficulty):
+    """On 10,000 scenes per difficulty, checked with geometry written here (separating axes on
+    rectangles built from the parameters): every start keeps more than 15 cm to every segment
+    (the clearance is 20 cm) and the simulator agrees; no start is jack-knifed. Past the branch:
+    straight, facing the start heading, the trailer axle on the road centreline beyond the mouth.
+    In the branch: straight on the branch axis, facing out. On the arc: the trailer between the
+    two headings."""
+    from tests.sim.test_uturn_scene import local, sat_gap
+    from truckrl.sim.collision import truck_collides
+
+    task, _, after = curriculum_starts(difficulty)
     p = {k: after["params", k].double().numpy() for k in after["params"].keys()}
     info = {k: after["route", k].double().numpy() for k in after["route"].keys()}
     pose = after["pose"].double().numpy()
     seg, mask = after["segments"].double().numpy(), after["mask"].numpy()
-    corners = []
-    for rect in footprint(pose, p):
+    for rect in articulated_footprint(pose, p):
         gap = np.where(mask, sat_gap(rect, seg), np.inf)
-        assert gap.min() > 0.05, f"a moved start comes within {gap.min():.3f} m of a segment"
-        corners.append(local(rect, info))
+        assert gap.min() > 0.15, f"a start comes within {gap.min():.3f} m of a segment"
     params = {k: after["params", k] for k in after["params"].keys()}
-    outline = vehicle_outline(after["pose"], params)
-    assert not contour_collides(outline, after["segments"], after["mask"]).any()
-    q = np.concatenate(corners, 1)  # [n, 8, 2] in the scene frame
+    assert not truck_collides(after["pose"], params, after["segments"], after["mask"]).any()
+    assert (np.abs(pose[:, 3]) < p["max_articulation"]).all()
+
+    kind = info["start_kind"]
     rel = (pose[:, 2] - info["road_heading"] + np.pi) % (2 * np.pi) - np.pi
     side, a = info["branch_side"], info["branch_angle"]
-    if kind == 2.0:
-        depth = side[:, None] * q[..., 1] - 0.5 * info["road_width"][:, None]
-        assert (depth > 0.0).all(), "an in-branch start sticks out into the road"
-        out = np.arctan2(-side * np.sin(a), -np.cos(a))
-        assert np.allclose(np.cos(rel - out), 1.0, atol=1e-5)
-    else:
-        h = 0.5 * info["branch_width"] / np.sin(a)
-        assert (q[..., 0] > (h + info["mouth_chamfer"])[:, None] - TOL).all()
-        assert (np.abs(q[..., 1]) < 0.5 * info["road_width"][:, None]).all()
-        assert np.allclose(np.cos(rel), 1.0, atol=1e-5)
+    out = np.arctan2(-side * np.sin(a), -np.cos(a))  # facing out of the branch (scene frame)
+    axle = pose[:, :2] - (p["kingpin_offset"] + p["trailer_wheelbase"])[:, None] * np.stack(
+        (np.cos(pose[:, 2]), np.sin(pose[:, 2])), -1
+    )
+    q = local(axle, info)  # the trailer axle in the scene frame (when straight)
+    past, branch, arc = kind == 1.0, kind == 3.0, kind == 2.0
+    assert past.any() or branch.any() or arc.any() or difficulty >= 4
+    assert np.allclose(pose[past | branch, 3], 0.0)
+    assert np.allclose(np.cos(rel[past]), 1.0, atol=1e-5)
+    assert np.allclose(q[past, 1], 0.0, atol=TOL)
+    assert (q[past, 0] > 0.0).all()
+    assert np.allclose(np.cos(rel[branch] - out[branch]), 1.0, atol=1e-5)
+    # on the branch axis: through (0, side W / 2) along (cos a, side sin a)
+    w = q[branch] - np.stack((0 * side, side * 0.5 * info["road_width"]), -1)[branch]
+    b = np.stack((np.cos(a), side * np.sin(a)), -1)[branch]
+    assert np.allclose(w[:, 0] * b[:, 1] - w[:, 1] * b[:, 0], 0.0, atol=TOL)
+    assert ((w * b).sum(-1) > 0).all(), "the trailer axle lies inside the branch"
+    # on the arc the trailer heading turns from the start heading (0) to facing out
+    psi = (rel + pose[:, 3] + np.pi) % (2 * np.pi) - np.pi
+    lo, hi = np.minimum(0.0, out), np.maximum(0.0, out)
+    assert ((psi[arc] >= lo[arc] - 1e-4) & (psi[arc] <= hi[arc] + 1e-4)).all()

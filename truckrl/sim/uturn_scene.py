@@ -78,7 +78,7 @@ rear axles, straight), ``dead_end`` (1.0 / 0.0), ``turn_radius`` [m] (``R``), ``
 ``mouth_chamfer`` [m] (``c``), ``x_far`` [m] (local x where the road ends: the dead-end wall, or
 ``half_extent``). Recording them draws no random numbers. The start curriculum's keys
 (:meth:`truckrl.task.uturn.UTurnTask.on_reset`): ``start_kind`` (:data:`START_ROAD` as
-generated), ``stage_draw`` and ``place_draw`` (uniform in [0, 1), drawn after everything else so
+generated), ``start_sigma`` (-1 as generated), ``stage_draw`` and ``place_draw`` (uniform in [0, 1), drawn after everything else so
 the scenes do not depend on them).
 """
 
@@ -121,12 +121,13 @@ INFO_KEYS: tuple[str, ...] = (
     "start_kind",
     "stage_draw",
     "place_draw",
+    "start_sigma",
 )
 
 #: ``info["start_kind"]`` codes: the generator's start on the road before the branch, and the two
 #: later points of the manoeuvre the start curriculum may move it to
 #: (:meth:`truckrl.task.uturn.UTurnTask.on_reset`).
-START_ROAD, START_PAST, START_BRANCH = 0.0, 1.0, 2.0
+START_ROAD, START_PAST, START_ARC, START_BRANCH = 0.0, 1.0, 2.0, 3.0
 
 
 def _metres(default: tuple[float, float], doc: str, hi: float = 1000.0):
@@ -404,6 +405,7 @@ def generate_uturn_scenes(
         start_kind=torch.full_like(half, START_ROAD),
         stage_draw=late[:, 0],
         place_draw=late[:, 1],
+        start_sigma=torch.full_like(half, -1.0),
     )
     frame = torch.cat((centre, heading[:, None]), -1)
     return UTurnSceneBatch(segments, mask, kind, start, goal, frame, info)
