@@ -23,7 +23,7 @@ def test_check_env_specs():
     env = TruckEnv(num_envs=3, config=UTURN, seed=0)
     check_env_specs(env, seed=1)
     td = env.reset()
-    assert td["observation"].shape == (3, NUM_FEATURES + 2)
+    assert td["observation"].shape == (3, NUM_FEATURES + 3)
     state = env.get_state()
     assert "max_reverse_speed" in state["params"].keys()
     assert {"road_width", "branch_side", "branch_angle", "goal_distance"} <= set(
@@ -160,25 +160,27 @@ def curriculum_starts(difficulty: float, n: int = 10_000, seed: int = 7, **start
 
 @pytest.mark.parametrize("difficulty", [0.0, 1.0, 2.0, 3.0, 4.0, 9.0])
 def test_start_kinds_follow_the_difficulty(difficulty):
-    """With stage_difficulty (0, 4): p = d / 4, z = 2 p + r (r the stage draw); z >= 2 keeps the
-    generator's road start, z < 2 starts on the reverse path at sigma >= 1 - z / 2 (further on
-    only where the drawn point is not free; rarely). Moved starts are at rest, their errors
-    recomputed."""
+    """With stage_difficulty (0, 4): p = d / 4, z = 3 p + r (r the stage draw); z >= 3 keeps
+    the generator's road start; 2 <= z < 3 starts on the forward leg, z - 2 of the way from the
+    pull point back to the road start; z < 2 on the reverse path at sigma >= 1 - z / 2 (further
+    on only where the drawn point is not free; rarely). Moved starts are at rest, their errors
+    recomputed, ``pulled`` set on the path."""
     _, before, after = curriculum_starts(difficulty)
     r = before["route", "stage_draw"]
-    z = 2.0 * min(difficulty / 4.0, 1.0) + r
-    road = after["route", "start_kind"] == 0.0
-    assert torch.equal(road, z >= 2.0)
-    assert road.float().mean().item() == pytest.approx(
-        max(0.0, 2 * min(difficulty / 4, 1) - 1), abs=0.02
-    )
+    z = 3.0 * min(difficulty / 4.0, 1.0) + r
+    kind = after["route", "start_kind"]
+    road, leg = kind == 0.0, kind == 4.0
+    path = ~(road | leg)
+    assert torch.equal(road, z >= 3.0) and torch.equal(leg, (z >= 2.0) & (z < 3.0))
     assert torch.equal(after["pose"][road], before["pose"][road])
     sigma = after["route", "start_sigma"]
     assert (sigma[road] == -1.0).all()
-    drawn = 1.0 - 0.5 * z[~road]
-    assert (sigma[~road] >= drawn - 1e-5).all() and (sigma[~road] <= 1.0).all()
-    if (~road).any():
-        assert (sigma[~road] > drawn + 1e-5).float().mean().item() < 0.3
+    assert torch.allclose(sigma[leg], 2.0 - z[leg])
+    drawn = 1.0 - 0.5 * z[path]
+    assert (sigma[path] >= drawn - 1e-5).all() and (sigma[path] <= 1.0).all()
+    if path.any():
+        assert (sigma[path] > drawn + 1e-5).float().mean().item() < 0.3
+    assert (after["pulled"][path] == 1.0).all() and (after["pulled"][road] == 0.0).all()
     assert (after["speed"] == 0).all()
     task = UTurnTask(EnvConfig(task={"name": "uturn"}))
     err = task.errors({k: after[k] for k in ("pose", "goal")})
@@ -227,11 +229,12 @@ def test_path_starts_are_free_and_on_the_manoeuvre(difficulty):
     (the clearance is 20 cm) and the simulator agrees; no start is jack-knifed. Past the branch:
     straight, facing the start heading, the trailer axle on the road centreline beyond the mouth.
     In the branch: straight on the branch axis, facing out. On the arc: the trailer between the
-    two headings."""
+    two headings. On the forward leg: straight, facing the start heading, between the road
+    start and the centreline."""
     from tests.sim.test_uturn_scene import local, sat_gap
     from truckrl.sim.collision import truck_collides
 
-    task, _, after = curriculum_starts(difficulty)
+    task, before, after = curriculum_starts(difficulty)
     p = {k: after["params", k].double().numpy() for k in after["params"].keys()}
     info = {k: after["route", k].double().numpy() for k in after["route"].keys()}
     pose = after["pose"].double().numpy()
@@ -251,8 +254,15 @@ def test_path_starts_are_free_and_on_the_manoeuvre(difficulty):
         (np.cos(pose[:, 2]), np.sin(pose[:, 2])), -1
     )
     q = local(axle, info)  # the trailer axle in the scene frame (when straight)
-    past, branch, arc = kind == 1.0, kind == 3.0, kind == 2.0
-    assert past.any() or branch.any() or arc.any() or difficulty >= 4
+    past, branch, arc, leg = kind == 1.0, kind == 3.0, kind == 2.0, kind == 4.0
+    assert past.any() or branch.any() or arc.any() or leg.any()
+    # the forward leg: straight, facing the start heading, the rear axle on the road between
+    # the road start's lane and the centreline, in front of the mouth's far chamfer
+    assert np.allclose(pose[leg, 3], 0.0) and np.allclose(np.cos(rel[leg]), 1.0, atol=1e-5)
+    start_q = local(before["pose"].double().numpy()[:, :2], info)
+    rear_axle = local(pose[:, :2], info)
+    assert (rear_axle[leg, 0] >= start_q[leg, 0] - TOL).all()
+    assert (rear_axle[leg, 1] <= TOL).all() and (rear_axle[leg, 1] >= start_q[leg, 1] - TOL).all()
     assert np.allclose(pose[past | branch, 3], 0.0)
     assert np.allclose(np.cos(rel[past]), 1.0, atol=1e-5)
     assert np.allclose(q[past, 1], 0.0, atol=TOL)
@@ -267,3 +277,42 @@ def test_path_starts_are_free_and_on_the_manoeuvre(difficulty):
     psi = (rel + pose[:, 3] + np.pi) % (2 * np.pi) - np.pi
     lo, hi = np.minimum(0.0, out), np.maximum(0.0, out)
     assert ((psi[arc] >= lo[arc] - 1e-4) & (psi[arc] <= hi[arc] + 1e-4)).all()
+
+
+def test_route_via_the_pull_point_by_hand():
+    """Before the truck has pulled past P the route runs p -> P -> T -> g; after, p -> T -> g.
+    T = (10, 0), P = (20, 0), g = (0, 0), theta_0 = 0; p = (3, 4) facing the start heading."""
+    s = hand_state((3.0, 4.0, 0.0, 0.0))
+    s["pull_point"] = torch.tensor([[20.0, 0.0]])
+    s["pulled"] = torch.tensor([0.0])
+    want = math.hypot(17.0, 4.0) + 10.0 + 10.0
+    assert route_to_go(s).item() == pytest.approx(want, rel=1e-6)
+    s["pulled"] = torch.tensor([1.0])
+    assert route_to_go(s).item() == pytest.approx(math.sqrt(65.0) + 10.0, rel=1e-6)
+
+
+def test_pulled_latches_once_level_with_the_pull_point():
+    """Driving forward from the road start: ``pulled`` is 0 until the rear axle is level with
+    P along the start heading, then stays 1 while the truck reverses back; the observation's
+    last feature shows it."""
+    env = TruckEnv(
+        num_envs=2, config={"task": {"name": "uturn", "start": {"enabled": False}}}, seed=4
+    )
+    td = env.reset()
+    s = env.get_state()
+    assert (s["pulled"] == 0).all() and (td["observation"][:, -1] == 0).all()
+    h = s["start_heading"]
+    u = torch.stack((h.cos(), h.sin()), -1)
+    seen = torch.zeros(2, dtype=torch.bool)
+    for i in range(400):
+        s = env.get_state()
+        ahead = ((s["pose"][:, :2] - s["pull_point"]) * u).sum(-1)
+        seen |= ahead >= 0
+        assert torch.equal(s["pulled"] == 1.0, seen), i
+        action = torch.where(seen[:, None], torch.tensor([-1.0, 0.0]), torch.tensor([0.3, 0.0]))
+        td["action"] = action
+        td = env.step(td)["next"]
+        if td["done"].any():
+            break
+    assert seen.any(), "no truck pulled past P"
+    assert (td["observation"][seen, -1] == 1.0).all()

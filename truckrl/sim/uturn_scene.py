@@ -127,7 +127,7 @@ INFO_KEYS: tuple[str, ...] = (
 #: ``info["start_kind"]`` codes: the generator's start on the road before the branch, and the two
 #: later points of the manoeuvre the start curriculum may move it to
 #: (:meth:`truckrl.task.uturn.UTurnTask.on_reset`).
-START_ROAD, START_PAST, START_ARC, START_BRANCH = 0.0, 1.0, 2.0, 3.0
+START_ROAD, START_PAST, START_ARC, START_BRANCH, START_LEG = 0.0, 1.0, 2.0, 3.0, 4.0
 
 
 def _metres(default: tuple[float, float], doc: str, hi: float = 1000.0):

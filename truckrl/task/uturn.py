@@ -52,7 +52,9 @@ from truckrl.sim.uturn_scene import (
     INFO_KEYS,
     START_ARC,
     START_BRANCH,
+    START_LEG,
     START_PAST,
+    START_ROAD,
     UTurnSceneConfig,
     generate_uturn_scenes,
 )
@@ -200,10 +202,12 @@ class UTurnTask(Task):
         "r_collision",
         "r_timeout",
     )
-    num_extras = 2
+    num_extras = 3
     category_dims = (
         CategoryDim(
-            "start", "start_kind", names=("road", "past branch", "on the arc", "in branch")
+            "start",
+            "start_kind",
+            names=("road", "past branch", "on the arc", "in branch", "pulling past"),
         ),
         CategoryDim("branch side", "branch_left", names=("right", "left")),
         CategoryDim("dead end", "dead_end", names=("open road", "dead end")),
@@ -217,8 +221,10 @@ class UTurnTask(Task):
         ),
         CategoryDim("truck length [m]", "truck_length", edges=(12.0, 15.0, 18.0, 21.0)),
     )
-    #: ``turn_point [N, 2]`` (route shaping's ``T``) and ``start_heading [N]`` (``theta_0``).
-    extra_state_keys = ("turn_point", "start_heading")
+    #: ``turn_point [N, 2]`` (route shaping's ``T``), ``start_heading [N]`` (``theta_0``),
+    #: ``pull_point [N, 2]`` (``P``, where the truck has pulled far enough past the branch) and
+    #: ``pulled [N]`` (1.0 once the rear axle has been level with ``P``, else 0.0).
+    extra_state_keys = ("turn_point", "start_heading", "pull_point", "pulled")
 
     def sample(self, m: int, rng: torch.Generator, device: torch.device) -> TensorDict:
         from tensordict import TensorDict
@@ -237,11 +243,14 @@ class UTurnTask(Task):
         return self.complete_state(state)
 
     def complete_state(self, state: TensorDict) -> TensorDict:
-        """Add ``start_heading`` (the current tractor heading) and ``turn_point`` where missing.
+        """Add ``start_heading`` (the current tractor heading), ``turn_point``, ``pull_point``
+        and ``pulled`` where missing.
 
-        ``turn_point`` needs the scene metadata (``state["route"]``); a state built by hand
-        without it gets the midpoint of the start and the goal (route shaping then degrades to
-        a detour through that point).
+        ``turn_point`` and ``pull_point`` need the scene metadata (``state["route"]``): ``P`` is
+        the tractor rear axle of the start curriculum's first path pose
+        (:func:`reverse_path`, ``sigma = 0``: the trailer ``past_gap`` beyond the mouth). A state
+        built by hand without it gets the midpoint of the start and the goal as ``T``, and
+        counts as pulled past (route shaping then degrades to a detour through ``T``).
         """
         keys = state.keys()
         if "start_heading" not in keys:
@@ -254,7 +263,23 @@ class UTurnTask(Task):
                 )
             else:
                 state["turn_point"] = 0.5 * (state["pose"][:, :2] + state["goal"][:, :2])
+        if "pull_point" not in keys:
+            if INFO_STATE_KEY in keys and "place_draw" in state[INFO_STATE_KEY].keys():
+                path = reverse_path(state[INFO_STATE_KEY], state["params"], self.cfg.task.start)
+                state["pull_point"] = path.pose(torch.zeros_like(state["start_heading"]))[:, :2]
+            else:
+                state["pull_point"] = state["turn_point"].clone()
+                state["pulled"] = torch.ones_like(state["start_heading"])
+        if "pulled" not in keys:
+            state["pulled"] = pulled_past(state["pose"], state).to(state["start_heading"])
         return state
+
+    def step(self, s: dict[str, Any], action: Tensor) -> dict[str, Tensor]:
+        """The shared step, and ``pulled`` latches once the rear axle is level with ``P``."""
+        new = super().step(s, action)
+        ahead = pulled_past(new["pose"], s).to(s["pulled"])
+        new["pulled"] = torch.maximum(s["pulled"], ahead)
+        return new
 
     def on_reset(self, state: TensorDict, difficulty: Tensor) -> TensorDict:
         """The start curriculum (``env.task.start``).
@@ -269,12 +294,17 @@ class UTurnTask(Task):
         off the arc, and on the arc articulated as in the steady turn round the arc's centre
         (capped at :data:`ARC_ARTICULATION` of ``max_articulation``).
 
+        **The forward leg** before it: from the road start, straight ahead to the pull point
+        ``P`` (the tractor rear axle of the path's first pose), where the truck has pulled far
+        enough past the branch to reverse into it.
+
         **The schedule.** With ``p = clamp((d - d0) / (d1 - d0), 0, 1)`` at difficulty ``d``
         (``stage_difficulty = (d0, d1)``) and the episode's ``stage_draw`` ``r``,
-        ``z = 2 p + r``: where ``z < 2`` the truck starts on the path at ``sigma = 1 - z / 2``;
-        otherwise at the generator's road start. So difficulty ``d0`` draws ``sigma`` in
-        ``(1/2, 1]``, the window slides back along the path, and from ``d1`` on every start is
-        the road start.
+        ``z = 3 p + r``: where ``z < 2`` the truck starts on the path at ``sigma = 1 - z / 2``;
+        where ``2 <= z < 3`` on the forward leg, at rest facing the start heading, ``z - 2`` of
+        the way from ``P`` back to the road start; otherwise at the generator's road start. So
+        difficulty ``d0`` draws ``sigma`` in ``(1/2, 1]``, the window slides back along the
+        path and the leg, and from ``d1`` on every start is the road start.
 
         **Free by test.** A path start whose truck, widened by ``clearance``, touches a segment
         moves on along the path (eight evenly spaced fallbacks to ``sigma = 1``; where none is
@@ -283,9 +313,11 @@ class UTurnTask(Task):
         geometry.
 
         ``start_heading`` (route shaping's ``theta_0``) keeps the road heading, so the shaping
-        is one potential for every start. ``info["start_kind"]`` records past branch / on the arc
-        / in the branch (:data:`~truckrl.sim.uturn_scene.START_PAST` ...) and
-        ``info["start_sigma"]`` the path fraction. A state without the curriculum's metadata
+        is one potential for every start; ``pulled`` is 1 on the path and on the leg from ``P``
+        on. ``info["start_kind"]`` records road / past branch / on the arc / in the branch /
+        pulling past (:data:`~truckrl.sim.uturn_scene.START_ROAD` ...) and
+        ``info["start_sigma"]`` the path fraction (on the leg minus its fraction, -1 on the
+        road). A state without the curriculum's metadata
         (built by hand) is returned unchanged.
         """
         cur = self.cfg.task.start
@@ -298,8 +330,9 @@ class UTurnTask(Task):
         d = difficulty.to(pose.dtype)
         d0, d1 = cur.stage_difficulty
         prog = ((d - d0) / (d1 - d0)).clamp(0.0, 1.0) if d1 > d0 else (d >= d0).to(d)
-        z = 2.0 * prog + info["stage_draw"]
+        z = 3.0 * prog + info["stage_draw"]
         on_path = z < 2.0
+        on_leg = (z >= 2.0) & (z < 3.0)
         sigma = (1.0 - 0.5 * z).clamp(0.0, 1.0)
 
         path = reverse_path(info, params, cur)
@@ -320,16 +353,25 @@ class UTurnTask(Task):
         first = free.to(torch.int8).argmax(0)  # first free candidate [m]
         moved = cand.gather(0, first.view(1, m, 1).expand(1, m, 4))[0]
         sigma = sig.gather(0, first.view(1, m))[0]
+        # the forward leg: straight, facing the start heading, (z - 2) of the way from P back
+        # to the road start (both on the straight road, the truck in its half: free)
+        frac = (z - 2.0).clamp(0.0, 1.0)
+        pp = state["pull_point"]
+        leg_xy = pp + frac[:, None] * (pose[:, :2] - pp)
+        leg = torch.cat((leg_xy, pose[:, 2:3], torch.zeros_like(frac)[:, None]), -1)
 
-        state["pose"] = torch.where(on_path[:, None], moved, pose)
+        new_pose = torch.where(on_path[:, None], moved, torch.where(on_leg[:, None], leg, pose))
+        state["pose"] = new_pose
         state.update(self.errors(state))
+        state["pulled"] = (on_path | pulled_past(new_pose, state)).to(state["pulled"])
         kind = torch.where(
             sigma < path.arc_from,
             START_PAST,
             torch.where(sigma < path.arc_to, START_ARC, START_BRANCH),
-        ).to(info["start_kind"])
-        info["start_kind"] = torch.where(on_path, kind, info["start_kind"])
-        info["start_sigma"] = torch.where(on_path, sigma, torch.full_like(sigma, -1.0))
+        )
+        kind = torch.where(on_path, kind, torch.where(on_leg, START_LEG, START_ROAD))
+        info["start_kind"] = kind.to(info["start_kind"])
+        info["start_sigma"] = torch.where(on_path, sigma, torch.where(on_leg, -frac, -1.0))
         return state
 
     def errors(self, s: dict[str, Any]) -> dict[str, Tensor]:
@@ -362,24 +404,42 @@ class UTurnTask(Task):
         }
 
     def observation_extras(self, s: dict[str, Any]) -> Tensor:
-        """``[N, 2]``: signed speed / ``max_reverse_speed``; ``max_reverse_speed`` mapped from
-        ``env.vehicle.max_reverse_speed`` to [-1, 1] (0 for a range of one value)."""
+        """``[N, 3]``: signed speed / ``max_reverse_speed``; ``max_reverse_speed`` mapped from
+        ``env.vehicle.max_reverse_speed`` to [-1, 1] (0 for a range of one value); ``pulled``
+        (1 once the truck has pulled far enough past the branch, which the shaping rewards
+        differently before and after)."""
         p = s["params"]
         v_rev = p["max_reverse_speed"]
         lo, hi = self.cfg.vehicle.max_reverse_speed
         span = hi - lo
         norm = (v_rev - 0.5 * (lo + hi)) * (2.0 / span) if span > 0 else v_rev * 0.0
-        return torch.stack((s["speed"] / v_rev, norm), -1)
+        return torch.stack((s["speed"] / v_rev, norm, s["pulled"]), -1)
 
 
 def route_to_go(s: dict[str, Any]) -> Tensor:
-    """Route shaping's distance to go ``[N]`` [m] (module doc): via the turning point while the
-    tractor faces the start direction, straight to the goal once it faces back, blended by
-    ``w = (1 + cos(theta - theta_0)) / 2``."""
+    """Route shaping's distance to go ``[N]`` [m] (module doc): while the tractor faces the
+    start direction, via the pull point ``P`` (until ``pulled``) and the turning point ``T``;
+    straight to the goal once it faces back; blended by ``w = (1 + cos(theta - theta_0)) / 2``.
+    A state without ``pulled`` counts as pulled past."""
     p, g, t = s["pose"][:, :2], s["goal"][:, :2], s["turn_point"]
     w = 0.5 * (1.0 + torch.cos(s["pose"][:, 2] - s["start_heading"]))
     via = (p - t).norm(dim=-1) + (t - g).norm(dim=-1)
+    pulled = s.get("pulled")
+    if pulled is not None:
+        pp = s["pull_point"]
+        before_pull = (p - pp).norm(dim=-1) + (pp - t).norm(dim=-1) + (t - g).norm(dim=-1)
+        via = torch.where(pulled > 0.5, via, before_pull)
     return w * via + (1.0 - w) * (p - g).norm(dim=-1)
+
+
+def pulled_past(pose: Tensor, s: Mapping[str, Any]) -> Tensor:
+    """``[N]`` bool: the tractor rear axle of ``pose [N, 4]`` is level with or beyond the pull
+    point ``s["pull_point"]`` along the start heading ``s["start_heading"]``."""
+    h = s["start_heading"]
+    ahead = (pose[:, 0] - s["pull_point"][:, 0]) * h.cos() + (
+        pose[:, 1] - s["pull_point"][:, 1]
+    ) * h.sin()
+    return ahead >= 0.0
 
 
 TASK = UTurnTask
