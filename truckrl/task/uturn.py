@@ -275,8 +275,11 @@ class UTurnTask(Task):
         return state
 
     def step(self, s: dict[str, Any], action: Tensor) -> dict[str, Tensor]:
-        """The shared step, and ``pulled`` latches once the rear axle is level with ``P``."""
+        """The shared step, and ``pulled`` latches once the rear axle is level with ``P`` (a
+        state without ``pulled``, built by hand for the kinematics alone, steps without it)."""
         new = super().step(s, action)
+        if "pulled" not in s:
+            return new
         ahead = pulled_past(new["pose"], s).to(s["pulled"])
         new["pulled"] = torch.maximum(s["pulled"], ahead)
         return new
