@@ -27,10 +27,15 @@
   distance to the goal; in between (in the branch) it blends. The heading terms stay measured
   to the goal heading: turning round is what the task asks, wherever it happens. Being a
   function of the state, the shaping is potential-based: the optimal policies are those of the
-  sparse terminal rewards, up to discounting. It still charges the pull past the branch (about
-  a truck length away from ``T``), the one part of the route it does not model.
-* Observation extras (2): signed speed / ``max_reverse_speed`` (below -1 never, < 0 reversing)
-  and ``max_reverse_speed`` mapped from its configured range to [-1, 1].
+  sparse terminal rewards, up to discounting. The pull past the branch is part of the route:
+  until the tractor rear axle has been level with the **pull point** ``P`` (on the road past
+  the branch, where the start curriculum's reverse path begins; the state's latched
+  ``pulled``), ``|p - T|`` reads ``|p - P| + |P - T|``. Without it the pull (about a truck length
+  away from ``T``) cost reward, and a policy trained that way drove to the mouth and stopped.
+* Observation extras (3): signed speed / ``max_reverse_speed`` (below -1 never, < 0 reversing),
+  ``max_reverse_speed`` mapped from its configured range to [-1, 1], and ``pulled``.
+* Start curriculum (``env.task.start``, :meth:`UTurnTask.on_reset`): at low difficulty the
+  truck starts part-way through the manoeuvre, at its end first.
 * Scene metadata: ``state["route"]`` holds the generator's per-episode ``info``
   (:data:`~truckrl.sim.uturn_scene.INFO_KEYS`); :attr:`UTurnTask.category_dims` bins evaluation
   by branch side, dead end, road width, branch width, branch angle and truck length.
