@@ -25,7 +25,8 @@ DOCK_FRAMES_TO_DIFFICULTY_2 = 6_000_000
 
 #: Frames in which ``python -m truckrl.train experiment=uturn`` (turn round through a side
 #: branch, PPO from scratch) must reach difficulty 1.5. The start curriculum then starts the
-#: trucks on the reverse path past the branch and on the arc into it, so reaching it means the
+#: trucks on the reverse path past the branch and on the arc into it (and 1 in 8 on the
+#: forward leg before it), so reaching it means the
 #: policy reversed the trailer part-way into the branch and drove out at difficulty 1 (15 m,
 #: 30 deg). Measured: 4.65 M frames (seed 0, 2 torch threads, 2.6 min); difficulty 2 took
 #: 28.6 M, too long for this test. The budget leaves 1.5x for seed and machine differences.

@@ -78,8 +78,8 @@ rear axles, straight), ``dead_end`` (1.0 / 0.0), ``turn_radius`` [m] (``R``), ``
 ``mouth_chamfer`` [m] (``c``), ``x_far`` [m] (local x where the road ends: the dead-end wall, or
 ``half_extent``). Recording them draws no random numbers. The start curriculum's keys
 (:meth:`truckrl.task.uturn.UTurnTask.on_reset`): ``start_kind`` (:data:`START_ROAD` as
-generated), ``start_sigma`` (-1 as generated), ``stage_draw`` and ``place_draw`` (uniform in [0, 1), drawn after everything else so
-the scenes do not depend on them).
+generated), ``start_sigma`` (-1 as generated), ``stage_draw`` and ``place_draw`` (uniform in
+[0, 1), drawn after everything else so the scenes do not depend on them).
 """
 
 from __future__ import annotations
@@ -124,9 +124,10 @@ INFO_KEYS: tuple[str, ...] = (
     "start_sigma",
 )
 
-#: ``info["start_kind"]`` codes: the generator's start on the road before the branch, and the two
-#: later points of the manoeuvre the start curriculum may move it to
-#: (:meth:`truckrl.task.uturn.UTurnTask.on_reset`).
+#: ``info["start_kind"]`` codes: the generator's start on the road before the branch, and the
+#: points of the manoeuvre the start curriculum may move it to (on the reverse path past the
+#: branch, on its arc, up the branch axis; on the forward leg before it):
+#: :meth:`truckrl.task.uturn.UTurnTask.on_reset`.
 START_ROAD, START_PAST, START_ARC, START_BRANCH, START_LEG = 0.0, 1.0, 2.0, 3.0, 4.0
 
 

@@ -317,16 +317,15 @@ class UTurnTask(Task):
         **Free by test.** A path start whose truck, widened by ``clearance``, touches a segment
         moves on along the path (eight evenly spaced fallbacks to ``sigma = 1``; where none is
         free, the road start). The end pose, straight on the branch axis with
-        ``branch_side_clearance`` each side, is free in every default scene. The tests check every kind of start on 10,000 scenes with independent
-        geometry.
+        ``branch_side_clearance`` each side, is free in every default scene. The tests check
+        every kind of start on 10,000 scenes with independent geometry.
 
         ``start_heading`` (route shaping's ``theta_0``) keeps the road heading, so the shaping
         is one potential for every start; ``pulled`` is 1 on the path and on the leg from ``P``
         on. ``info["start_kind"]`` records road / past branch / on the arc / in the branch /
         pulling past (:data:`~truckrl.sim.uturn_scene.START_ROAD` ...) and
         ``info["start_sigma"]`` the path fraction (on the leg minus its fraction, -1 on the
-        road). A state without the curriculum's metadata
-        (built by hand) is returned unchanged.
+        road). A state without the curriculum's metadata (built by hand) is returned unchanged.
         """
         cur = self.cfg.task.start
         if not cur.enabled or INFO_STATE_KEY not in state.keys():
@@ -450,9 +449,6 @@ def pulled_past(pose: Tensor, s: Mapping[str, Any]) -> Tensor:
     return ahead >= 0.0
 
 
-TASK = UTurnTask
-
-
 def widened(params: Mapping[str, Tensor], margin: float) -> dict[str, Tensor]:
     """Vehicle parameters whose bodies are ``margin`` [m] larger on every side (for a clearance
     test with :func:`~truckrl.sim.collision.truck_collides`)."""
@@ -471,7 +467,9 @@ def widened(params: Mapping[str, Tensor], margin: float) -> dict[str, Tensor]:
 
 @dataclass
 class ReversePath:
-    """The start curriculum's reference path of the trailer axle, per scene (world frame).
+    """The start curriculum's reference path of the trailer axle, per scene: built in the
+    scene's local frame with the branch mirrored to the left (``side``), posed in the world
+    through ``frame``.
 
     Three pieces by arc length: straight back along the road centreline from ``p0`` (motion
     heading ``road + pi``), an arc of radius ``radius`` turning onto the branch axis, then up
@@ -480,7 +478,7 @@ class ReversePath:
     arc, in the steady turn on it.
     """
 
-    p0: Tensor  # [N, 2] local start of the path
+    p0: Tensor  # [N, 2] start of the path, local left-branch frame [m]
     back: Tensor  # [N] length of the straight piece [m]
     radius: Tensor  # [N] [m]
     turn: Tensor  # [N] signed turn of the motion heading over the arc [rad]
@@ -504,8 +502,9 @@ class ReversePath:
         return (self.back + self.radius * self.turn.abs()) / self.length
 
     def pose(self, sigma: Tensor) -> Tensor:
-        """``[N, 4]`` tractor pose (articulation 0) with the trailer axle at path fraction
-        ``sigma [N]``, facing against the direction of travel along the path."""
+        """``[N, 4]`` world pose ``(x, y, theta, phi)`` of the truck whose trailer axle is at path
+        fraction ``sigma [N]``, the trailer facing against the direction of travel along the
+        path: articulation 0 off the arc, the steady turn (capped at ``max_phi``) on it."""
         s = sigma * self.length
         arc_len = self.radius * self.turn.abs()
         # left-branch local frame (right branches mirrored by side at the end)
@@ -600,3 +599,6 @@ def reverse_path(
         params["kingpin_offset"],
         ARC_ARTICULATION * params["max_articulation"],
     )
+
+
+TASK = UTurnTask
