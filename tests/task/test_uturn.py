@@ -13,7 +13,8 @@ from truckrl.configs import TrainConfig
 from truckrl.env import TruckEnv
 from truckrl.task.base import NUM_FEATURES
 from truckrl.task.config import EnvConfig
-from truckrl.task.uturn import UTurnTask, route_to_go, turning_point
+from truckrl.sim.vehicle import truck_extents
+from truckrl.task.uturn import UTurnTask, path_to_go, route_to_go, turning_point
 
 UTURN = {"task": {"name": "uturn"}}
 TOL = 1e-3  # [m] float32 round-off at coordinates of O(100 m)
@@ -62,7 +63,7 @@ def test_errors_by_hand():
 def test_rewards_by_hand():
     """Route shaping: to_go = w (|p - T| + |T - g|) + (1 - w) |p - g|, w = (1 + cos(theta -
     theta_0)) / 2, with T = (10, 0), g = (0, 0), theta_0 = 0."""
-    task = UTurnTask(EnvConfig(task=UTURN["task"]))
+    task = UTurnTask(EnvConfig(task={"name": "uturn", "reward": {"shaping": "route"}}))
     before = hand_state((3.0, 4.0, 0.0, 0.0))
     after = hand_state((6.0, 4.0, math.pi / 2, -0.5))
     for s in (before, after):
@@ -315,4 +316,71 @@ def test_pulled_latches_once_level_with_the_pull_point():
         if td["done"].any():
             break
     assert seen.any(), "no truck pulled past P"
-    assert (td["observation"][seen, -1] == 1.0).all()
+    # shaping path: the last feature is the phase (pulled + reached) / 2; no truck got deep
+    s = env.get_state()
+    assert (s["reached"][seen] == 0.0).all()
+    assert (td["observation"][seen, -1] == 0.5).all()
+
+
+def test_path_shaping_by_hand():
+    """Shaping path: to_go = |p - P| + |P - T| + |T - g| before the pull, |p - T| + |T - g|
+    after it, |p - g| once T is reached; no heading blend. T = (10, 0), P = (20, 0),
+    g = (0, 0); p = (3, 4) facing 90 deg off the start heading (the blend would halve the
+    route there)."""
+    task = UTurnTask(EnvConfig(task=UTURN["task"]))
+    assert task.cfg.task.reward.shaping == "path"  # the default
+    s = hand_state((3.0, 4.0, math.pi / 2, 0.0))
+    s["pull_point"] = torch.tensor([[20.0, 0.0]])
+    s["pulled"], s["reached"] = torch.tensor([0.0]), torch.tensor([0.0])
+    assert path_to_go(s).item() == pytest.approx(math.hypot(17.0, 4.0) + 20.0, rel=1e-6)
+    s["pulled"] = torch.tensor([1.0])
+    assert path_to_go(s).item() == pytest.approx(math.sqrt(65.0) + 10.0, rel=1e-6)
+    s["reached"] = torch.tensor([1.0])
+    assert path_to_go(s).item() == pytest.approx(5.0, rel=1e-6)
+    # the reward's progress term is the drop of to_go: reversing from p to (8, 1), not reached
+    before = {**s, "reached": torch.tensor([0.0])}
+    after = {**before, "pose": torch.tensor([[8.0, 1.0, math.pi / 2, 0.0]])}
+    for x in (before, after):
+        x.update(task.errors(x))
+    no = torch.tensor([False])
+    flags = {"success": no, "collision": no, "jackknife": no, "truncated": no}
+    want = 0.05 * (math.sqrt(65.0) - math.sqrt(5.0))
+    assert task.reward_terms(before, after, flags)["r_progress"].item() == pytest.approx(
+        want, rel=1e-5
+    )
+
+
+def test_reached_latches_at_the_turning_point_depth():
+    """Shaping path: T is the tractor rear axle of the reverse path's end (the in-branch start
+    at sigma = 1); ``reached`` is 1 where the rear axle's depth along the branch axis (computed
+    here from the scene metadata) is within reach_slack of T's, and a start there has it."""
+    env = TruckEnv(num_envs=400, config=UTURN, seed=7)
+    env.set_difficulty(0.0)  # every start on the reverse path, most of them in the branch
+    env.reset()
+    s = env.get_state()
+    info = s["route"]
+    a, side, h = info["branch_angle"], info["branch_side"], info["road_heading"]
+    # the branch axis in the world, from the local (cos a, side sin a)
+    axis = torch.stack(
+        (a.cos() * h.cos() - side * a.sin() * h.sin(), a.cos() * h.sin() + side * a.sin() * h.cos()),
+        -1,
+    )
+    normal = torch.stack((-side * h.sin(), side * h.cos()), -1)  # across the road, branch side
+    # the branch axis leaves the branch-side curb at the local x = 0 (mouth_x, mouth_y: the
+    # road centreline there)
+    mouth = torch.stack((info["mouth_x"], info["mouth_y"]), -1)
+    mouth = mouth + 0.5 * info["road_width"][:, None] * normal
+    depth_t = ((s["turn_point"] - mouth) * axis).sum(-1)
+    depth_p = ((s["pose"][:, :2] - mouth) * axis).sum(-1)
+    want = depth_p >= depth_t - 2.0
+    assert torch.equal(s["reached"] == 1.0, want)
+    deep = info["start_sigma"] >= 0.98  # within ~1.6 m of the path's end
+    assert deep.sum() > 5 and (s["reached"][deep] == 1.0).all()
+    # T on the branch axis, and the straight truck there, facing out, has its rear-centre
+    # branch_end_gap (0.5-2 m) plus the skew of its corners short of the end wall
+    rel = s["turn_point"] - mouth
+    assert (rel[:, 0] * axis[:, 1] - rel[:, 1] * axis[:, 0]).abs().max() < TOL
+    _, rear, half_w = truck_extents({k: s["params"][k] for k in s["params"].keys()})
+    rear_depth = ((s["turn_point"] + rear[:, None] * axis - mouth) * normal).sum(-1)
+    short = info["branch_depth"] - rear_depth - half_w * a.cos().abs()
+    assert short.min() > 0.5 - TOL and short.max() < 2.0 + TOL

@@ -94,17 +94,27 @@ class UTurnRewardConfig:
     collision: float = param(-7.0, doc="on collision or jack-knife", source="paper")
     timeout: float = param(-8.0, doc="on timeout", source="paper")
     shaping: str = param(
-        "route",
-        choices=("goal", "route"),
-        doc="progress measured straight to the goal (paper) or via the branch's turning point "
-        "(module doc)",
+        "path",
+        choices=("goal", "route", "path"),
+        doc="progress measured straight to the goal (paper), via a turning point at turn_depth "
+        "blended by heading (route), or via the reverse path's end until it is reached (path; "
+        "module doc)",
     )
     turn_depth: float = param(
         0.5,
         lo=0.0,
         hi=1.0,
         unit="branch depths",
-        doc="turning point on the branch axis, this fraction of the branch depth from the curb",
+        doc="shaping=route: turning point on the branch axis, this fraction of the branch depth "
+        "from the curb",
+    )
+    reach_slack: float = param(
+        2.0,
+        lo=0.0,
+        hi=50.0,
+        unit="m",
+        doc="shaping=path: the turning point counts as reached once the tractor rear axle is "
+        "this close to its depth along the branch axis",
     )
 
     def __post_init__(self) -> None:
@@ -229,7 +239,17 @@ class UTurnTask(Task):
     #: ``turn_point [N, 2]`` (route shaping's ``T``), ``start_heading [N]`` (``theta_0``),
     #: ``pull_point [N, 2]`` (``P``, where the truck has pulled far enough past the branch) and
     #: ``pulled [N]`` (1.0 once the rear axle has been level with ``P``, else 0.0).
-    extra_state_keys = ("turn_point", "start_heading", "pull_point", "pulled")
+    #: ``turn_axis [N, 2]`` (unit vector along the branch axis into the branch) and ``reached``
+    #: ``[N]`` (1.0 once the rear axle has been within ``reach_slack`` of ``T``'s depth along
+    #: it; shaping ``path``).
+    extra_state_keys = (
+        "turn_point",
+        "start_heading",
+        "pull_point",
+        "pulled",
+        "turn_axis",
+        "reached",
+    )
 
     def sample(self, m: int, rng: torch.Generator, device: torch.device) -> TensorDict:
         from tensordict import TensorDict
@@ -258,10 +278,15 @@ class UTurnTask(Task):
         counts as pulled past (route shaping then degrades to a detour through ``T``).
         """
         keys = state.keys()
+        path_shaping = self.cfg.task.reward.shaping == "path"
+        has_path = INFO_STATE_KEY in keys and "place_draw" in state[INFO_STATE_KEY].keys()
         if "start_heading" not in keys:
             state["start_heading"] = state["pose"][:, 2].clone()
         if "turn_point" not in keys:
-            if INFO_STATE_KEY in keys:
+            if path_shaping and has_path:
+                path = reverse_path(state[INFO_STATE_KEY], state["params"], self.cfg.task.start)
+                state["turn_point"] = path.pose(torch.ones_like(state["start_heading"]))[:, :2]
+            elif INFO_STATE_KEY in keys:
                 info = state[INFO_STATE_KEY]
                 state["turn_point"] = turning_point(
                     {k: info[k] for k in INFO_KEYS}, self.cfg.task.reward.turn_depth
@@ -277,7 +302,25 @@ class UTurnTask(Task):
                 state["pulled"] = torch.ones_like(state["start_heading"])
         if "pulled" not in keys:
             state["pulled"] = pulled_past(state["pose"], state).to(state["start_heading"])
+        if "turn_axis" not in keys:
+            if INFO_STATE_KEY in keys:
+                info = state[INFO_STATE_KEY]
+                a, side = info["branch_angle"], info["branch_side"]
+                local = torch.stack((a.cos(), side * a.sin()), -1)
+                state["turn_axis"] = rotate(local, info["road_heading"])
+            else:  # by hand: from the start towards T
+                rel = state["turn_point"] - state["pose"][:, :2]
+                state["turn_axis"] = rel / rel.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+        if "reached" not in keys:
+            state["reached"] = self.reached(state["pose"], state).to(state["start_heading"])
         return state
+
+    def reached(self, pose: Tensor, s: Mapping[str, Any]) -> Tensor:
+        """``[N]`` bool: the tractor rear axle of ``pose [N, 4]`` is within ``reach_slack`` of the
+        turning point's depth along the branch axis, or beyond it."""
+        rel = pose[:, :2] - s["turn_point"]
+        depth = (rel * s["turn_axis"]).sum(-1)
+        return depth >= -self.cfg.task.reward.reach_slack
 
     def step(self, s: dict[str, Any], action: Tensor) -> dict[str, Tensor]:
         """The shared step, and ``pulled`` latches once the rear axle is level with ``P`` (a
@@ -287,6 +330,9 @@ class UTurnTask(Task):
             return new
         ahead = pulled_past(new["pose"], s).to(s["pulled"])
         new["pulled"] = torch.maximum(s["pulled"], ahead)
+        if "reached" in s:
+            deep = self.reached(new["pose"], s).to(s["reached"])
+            new["reached"] = torch.maximum(s["reached"], deep)
         return new
 
     def on_reset(self, state: TensorDict, difficulty: Tensor) -> TensorDict:
@@ -371,6 +417,7 @@ class UTurnTask(Task):
         state["pose"] = new_pose
         state.update(self.errors(state))
         state["pulled"] = (on_path | pulled_past(new_pose, state)).to(state["pulled"])
+        state["reached"] = self.reached(new_pose, state).to(state["reached"])
         kind = torch.where(
             sigma < path.arc_from,
             START_PAST,
@@ -396,6 +443,8 @@ class UTurnTask(Task):
         failed = flags["collision"] | flags["jackknife"]
         if w.shaping == "route":
             progress = route_to_go(before) - route_to_go(after)
+        elif w.shaping == "path":
+            progress = path_to_go(before) - path_to_go(after)
         else:
             progress = before["pos_error"] - after["pos_error"]
         return {
@@ -420,7 +469,10 @@ class UTurnTask(Task):
         lo, hi = self.cfg.vehicle.max_reverse_speed
         span = hi - lo
         norm = (v_rev - 0.5 * (lo + hi)) * (2.0 / span) if span > 0 else v_rev * 0.0
-        return torch.stack((s["speed"] / v_rev, norm, s["pulled"]), -1)
+        phase = s["pulled"]
+        if self.cfg.task.reward.shaping == "path":
+            phase = 0.5 * (s["pulled"] + s["reached"])
+        return torch.stack((s["speed"] / v_rev, norm, phase), -1)
 
 
 def route_to_go(s: dict[str, Any]) -> Tensor:
@@ -437,6 +489,18 @@ def route_to_go(s: dict[str, Any]) -> Tensor:
         before_pull = (p - pp).norm(dim=-1) + (pp - t).norm(dim=-1) + (t - g).norm(dim=-1)
         via = torch.where(pulled > 0.5, via, before_pull)
     return w * via + (1.0 - w) * (p - g).norm(dim=-1)
+
+
+def path_to_go(s: dict[str, Any]) -> Tensor:
+    """Shaping ``path``'s distance to go ``[N]`` [m] (module doc): ``|p - P| + |P - T| + |T - g|``
+    until ``pulled``, then ``|p - T| + |T - g|`` until ``reached``, then ``|p - g|``; ``T`` the
+    tractor rear axle at the end of the reverse path (deep in the branch)."""
+    p, g, t, pp = s["pose"][:, :2], s["goal"][:, :2], s["turn_point"], s["pull_point"]
+    via = (p - t).norm(dim=-1) + (t - g).norm(dim=-1)
+    before_pull = (p - pp).norm(dim=-1) + (pp - t).norm(dim=-1) + (t - g).norm(dim=-1)
+    direct = (p - g).norm(dim=-1)
+    to_go = torch.where(s["pulled"] > 0.5, via, before_pull)
+    return torch.where(s["reached"] > 0.5, direct, to_go)
 
 
 def pulled_past(pose: Tensor, s: Mapping[str, Any]) -> Tensor:
