@@ -14,8 +14,25 @@
 * Shaping (``env.task.reward.shaping``): ``goal`` measures progress as the straight distance to
   the goal (the paper's). Here that punishes the manoeuvre's first half: the goal lies behind,
   so driving forward to the branch loses reward, and reversing straight back down the start lane
-  towards the goal (heading still wrong) earns it, a dead end. ``route`` (default) measures
-  progress with the potential
+  towards the goal (heading still wrong) earns it, a dead end.
+
+  ``path`` (default) measures progress along the manoeuvre's phases with the potential
+
+      to_go = |p - P| + |P - T| + |T - g|   until pulled,
+              |p - T| + |T - g|             until reached,
+              |p - g|                       after,
+
+  ``T`` the tractor rear axle at the end of the start curriculum's reverse path (the truck
+  straight on the branch axis, its trailer 0.5-2 m short of the end wall), ``P`` the pull
+  point below, ``reached`` a latched state entry: 1 once the rear axle has come within
+  ``reach_slack`` of ``T``'s depth along the branch axis. Why: under ``route`` (below) a policy
+  backed its trailer only 5-10 m into the branch (``T`` there lay where the truck cannot go,
+  and the heading blend paid for turning out early); from there the tractor, turning out across
+  the road, hit the far curb in 73 of 111 failed left-branch and 64 of 71 failed right-branch
+  episodes (300 scenes at difficulty 4). Backing the whole truck in first leaves the tractor the
+  branch to turn in.
+
+  ``route`` (the shaping of the first learned U-turns) measures progress with the potential
 
       to_go = w * (|p - T| + |T - g|) + (1 - w) * |p - g|,   w = (1 + cos(theta - theta_0)) / 2
 
@@ -33,7 +50,8 @@
   ``pulled``), ``|p - T|`` reads ``|p - P| + |P - T|``. Without it the pull (about a truck length
   away from ``T``) cost reward, and a policy trained that way drove to the mouth and stopped.
 * Observation extras (3): signed speed / ``max_reverse_speed`` (below -1 never, < 0 reversing),
-  ``max_reverse_speed`` mapped from its configured range to [-1, 1], and ``pulled``.
+  ``max_reverse_speed`` mapped from its configured range to [-1, 1], and the phase: ``pulled``
+  under ``route``, ``(pulled + reached) / 2`` under ``path``.
 * Start curriculum (``env.task.start``, :meth:`UTurnTask.on_reset`): at low difficulty the
   truck starts part-way through the manoeuvre, at its end first.
 * Scene metadata: ``state["route"]`` holds the generator's per-episode ``info``
@@ -461,9 +479,9 @@ class UTurnTask(Task):
 
     def observation_extras(self, s: dict[str, Any]) -> Tensor:
         """``[N, 3]``: signed speed / ``max_reverse_speed``; ``max_reverse_speed`` mapped from
-        ``env.vehicle.max_reverse_speed`` to [-1, 1] (0 for a range of one value); ``pulled``
-        (1 once the truck has pulled far enough past the branch, which the shaping rewards
-        differently before and after)."""
+        ``env.vehicle.max_reverse_speed`` to [-1, 1] (0 for a range of one value); the phase,
+        which the shaping rewards differently: ``pulled`` (1 once the truck has pulled far
+        enough past the branch) under ``route``, ``(pulled + reached) / 2`` under ``path``."""
         p = s["params"]
         v_rev = p["max_reverse_speed"]
         lo, hi = self.cfg.vehicle.max_reverse_speed
