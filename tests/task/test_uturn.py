@@ -11,9 +11,9 @@ from tests.conftest import compose_config
 from truckrl.cli import to_config
 from truckrl.configs import TrainConfig
 from truckrl.env import TruckEnv
+from truckrl.sim.vehicle import truck_extents
 from truckrl.task.base import NUM_FEATURES
 from truckrl.task.config import EnvConfig
-from truckrl.sim.vehicle import truck_extents
 from truckrl.task.uturn import UTurnTask, path_to_go, route_to_go, turning_point
 
 UTURN = {"task": {"name": "uturn"}}
@@ -362,7 +362,10 @@ def test_reached_latches_at_the_turning_point_depth():
     a, side, h = info["branch_angle"], info["branch_side"], info["road_heading"]
     # the branch axis in the world, from the local (cos a, side sin a)
     axis = torch.stack(
-        (a.cos() * h.cos() - side * a.sin() * h.sin(), a.cos() * h.sin() + side * a.sin() * h.cos()),
+        (
+            a.cos() * h.cos() - side * a.sin() * h.sin(),
+            a.cos() * h.sin() + side * a.sin() * h.cos(),
+        ),
         -1,
     )
     normal = torch.stack((-side * h.sin(), side * h.cos()), -1)  # across the road, branch side

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 from torch import Tensor
 
 from truckrl.sim.geometry import segment_box_overlap, segments_intersect
@@ -45,3 +47,51 @@ def truck_collides(
         segments, *trailer, mask=mask
     )
     return hit.any(-1)
+
+
+def touching(
+    pose: Tensor,
+    params: dict[str, Tensor],
+    segments: Tensor,
+    mask: Tensor | None = None,
+    along: float | Tensor = 0.0,
+    across: float | Tensor = 0.0,
+) -> tuple[Tensor, Tensor]:
+    """Which segments each body touches, with the bodies lengthened by ``along`` [m] at both
+    ends and widened by ``across`` [m] on both sides (floats or ``[N]``): grown by one step's
+    travel, a pose just before a collision step touches what the step hits.
+
+    Returns:
+        ``(tractor [N, E], trailer [N, E])`` bool: segment ``e`` overlaps that body.
+    """
+    grown = dict(params.items())
+    for key in ("tractor_width", "trailer_width"):
+        grown[key] = params[key] + 2.0 * across
+    for key in (
+        "front_overhang",
+        "rear_overhang",
+        "trailer_front_overhang",
+        "trailer_rear_overhang",
+    ):
+        grown[key] = params[key] + along
+    tractor, trailer, _ = truck_boxes(pose, grown)
+    return (
+        segment_box_overlap(segments, *tractor, mask=mask),
+        segment_box_overlap(segments, *trailer, mask=mask),
+    )
+
+
+def widened(params: Mapping[str, Tensor], margin: float) -> dict[str, Tensor]:
+    """Vehicle parameters whose bodies are ``margin`` [m] larger on every side (for a clearance
+    test with :func:`truck_collides`)."""
+    out = dict(params.items())
+    for key in ("tractor_width", "trailer_width"):
+        out[key] = params[key] + 2.0 * margin
+    for key in (
+        "front_overhang",
+        "rear_overhang",
+        "trailer_front_overhang",
+        "trailer_rear_overhang",
+    ):
+        out[key] = params[key] + margin
+    return out

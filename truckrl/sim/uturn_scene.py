@@ -99,6 +99,18 @@ from truckrl.sim.vehicle import truck_extents
 NUM_SEGMENTS = 9
 #: Slot of the dead-end wall (masked out where there is none).
 DEAD_END_SLOT = 8
+#: What each segment slot is (module doc, "Segments"), for reports.
+SEGMENT_NAMES: tuple[str, ...] = (
+    "curb, far side",
+    "curb before the mouth",
+    "curb after the mouth",
+    "chamfer, start side",
+    "chamfer, far side",
+    "branch wall, start side",
+    "branch wall, far side",
+    "branch end wall",
+    "dead-end wall",
+)
 #: Per-episode metadata keys of :attr:`UTurnSceneBatch.info` (module doc, "Metadata").
 INFO_KEYS: tuple[str, ...] = (
     "road_width",

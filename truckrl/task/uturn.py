@@ -69,7 +69,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 from torch import Tensor
 
-from truckrl.sim.collision import truck_collides
+from truckrl.sim.collision import truck_collides, widened
 from truckrl.sim.geometry import rotate, wrap_angle
 from truckrl.sim.uturn_scene import (
     INFO_KEYS,
@@ -529,22 +529,6 @@ def pulled_past(pose: Tensor, s: Mapping[str, Any]) -> Tensor:
         pose[:, 1] - s["pull_point"][:, 1]
     ) * h.sin()
     return ahead >= 0.0
-
-
-def widened(params: Mapping[str, Tensor], margin: float) -> dict[str, Tensor]:
-    """Vehicle parameters whose bodies are ``margin`` [m] larger on every side (for a clearance
-    test with :func:`~truckrl.sim.collision.truck_collides`)."""
-    out = dict(params.items())
-    for key in ("tractor_width", "trailer_width"):
-        out[key] = params[key] + 2.0 * margin
-    for key in (
-        "front_overhang",
-        "rear_overhang",
-        "trailer_front_overhang",
-        "trailer_rear_overhang",
-    ):
-        out[key] = params[key] + margin
-    return out
 
 
 @dataclass

@@ -1,0 +1,114 @@
+"""``python -m truckrl.diagnose`` and its parts: which body touched what, the trailer's depth into
+the branch, and the per-episode record of a scripted drive whose outcome is known in advance."""
+
+import math
+
+import pytest
+import torch
+
+from truckrl.agent.diagnosis import diagnose_uturn, summarize_diagnosis, trailer_depth
+from truckrl.diagnose import main
+from truckrl.sim.collision import touching
+from truckrl.sim.uturn_scene import DEAD_END_SLOT, SEGMENT_NAMES
+from truckrl.task import EnvConfig
+
+# a straight truck, rear axle at the origin heading +x: tractor from x = -0.9 to 3.8 + 1.4 =
+# 5.2, half width 1.225; trailer axle at x = -8.5, trailer from 1.25 to -10.75, half width 1.25
+TRUCK = dict(
+    wheelbase=3.8,
+    front_overhang=1.4,
+    rear_overhang=0.9,
+    tractor_width=2.45,
+    kingpin_offset=0.0,
+    trailer_wheelbase=8.5,
+    trailer_front_overhang=1.25,
+    trailer_rear_overhang=2.25,
+    trailer_width=2.5,
+    cab_gap=0.95,
+)
+
+
+def test_touching_names_the_body_by_hand():
+    params = {k: torch.tensor([v]) for k, v in TRUCK.items()}
+    pose = torch.zeros(1, 4)
+    segs = torch.tensor(
+        [
+            [
+                [5.5, -3.0, 5.5, 3.0],  # across the road 0.3 m ahead of the bumper
+                [-10.5, -3.0, -10.5, 3.0],  # across the trailer's rear end only
+                [-5.0, 1.24, -3.0, 1.24],  # along the trailer's side, inside it by 1 cm
+                [-5.0, 1.30, -3.0, 1.30],  # 5 cm outside it
+            ]
+        ]
+    )
+    tractor, trailer = touching(pose, params, segs)
+    assert tractor.tolist() == [[False, False, False, False]]
+    assert trailer.tolist() == [[False, True, True, False]]
+    tractor, trailer = touching(pose, params, segs, along=0.5, across=0.5)
+    assert tractor.tolist() == [[True, False, False, False]]
+    assert trailer.tolist() == [[False, True, True, True]]
+    tractor, trailer = touching(pose, params, segs, along=0.5)  # longer only
+    assert tractor.tolist() == [[True, False, False, False]]
+    assert trailer.tolist() == [[False, True, True, False]]
+
+
+def test_trailer_depth_by_hand():
+    """Road heading 90 deg (the road runs along +y), centreline through (10, 0), 8 m wide, a left
+    branch: the branch-side curb line is x = 10 - 4 = 6 and 'into the branch' is -x. A truck
+    heading -x with its rear axle at (2, 5): trailer axle 8.5 m behind it, at x = 10.5, which is
+    4.5 m on the road side of the curb line: depth -4.5 - 4 = -8.5 - ... computed below."""
+    params = {k: torch.tensor([v]) for k, v in TRUCK.items()}
+    info = {
+        "mouth_x": torch.tensor([10.0]),
+        "mouth_y": torch.tensor([0.0]),
+        "road_heading": torch.tensor([math.pi / 2]),
+        "road_width": torch.tensor([8.0]),
+        "branch_side": torch.tensor([1.0]),
+    }
+    pose = torch.tensor([[2.0, 5.0, math.pi, 0.0]])  # trailer axle at (10.5, 5)
+    # across the road towards the branch side (left of +y is -x): 10 - 10.5 = -0.5 m from the
+    # centreline, so 0.5 + 4 = 4.5 m short of the curb line
+    assert trailer_depth(pose, params, info).item() == pytest.approx(-4.5, abs=1e-5)
+    pose = torch.tensor([[-8.0, 5.0, math.pi, 0.0]])  # trailer axle at (0.5, 5): 5.5 m beyond
+    assert trailer_depth(pose, params, info).item() == pytest.approx(5.5, abs=1e-5)
+    info["branch_side"] = torch.tensor([-1.0])  # a right branch: the other way
+    assert trailer_depth(pose, params, info).item() == pytest.approx(-9.5 - 4.0, abs=1e-5)
+
+
+def full_ahead(td):
+    """Full forward acceleration, steering held: the truck drives straight down its lane."""
+    td["action"] = torch.tensor([1.0, 0.0]).expand(td.batch_size[0], 2).clone()
+    return td
+
+
+def test_a_straight_drive_is_recorded_as_it_must_end():
+    """Driving straight ahead from the road start: every truck pulls past the branch, never turns
+    round or enters the branch; in a dead end it hits the dead-end wall with its tractor (and
+    nothing else), on the open road it times out."""
+    cfg = EnvConfig(task={"name": "uturn", "start": {"enabled": False}}, max_steps=300)
+    d = diagnose_uturn(full_ahead, cfg, difficulty=4.0, episodes=24, seed=3)
+    from truckrl.env import TruckEnv
+
+    env = TruckEnv(num_envs=24, config=cfg, seed=3)
+    env.reset()
+    dead = env.get_state()["route", "dead_end"] > 0.5
+    assert dead.any() and (~dead).any()
+    assert (d["outcome"][dead] == 2).all() and (d["outcome"][~dead] == 0).all()
+    assert d["pulled"].all() and not d["turned"].any() and (d["depth"] < 0).all()
+    assert d["tractor_hit"][dead, DEAD_END_SLOT].all()
+    others = [e for e in range(len(SEGMENT_NAMES)) if e != DEAD_END_SLOT]
+    assert not d["tractor_hit"][:, others].any() and not d["trailer_hit"].any()
+    rows = summarize_diagnosis(d)
+    crash = [r for r in rows if r["outcome"] == "collision"]
+    assert sum(r["episodes"] for r in crash) == int(dead.sum())
+    assert all(set(r["touched"]) == {"tractor: dead-end wall"} for r in crash)
+
+
+def test_cli_refuses_bad_input_in_one_line(capsys):
+    assert main(["pretrained", "--episodes", "0"]) == 2
+    assert "--episodes = 0" in capsys.readouterr().err
+    assert main(["pretrained", "--episodes", "2"]) == 2  # the shipped intersection policy
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "task 'intersection'" in err and "'uturn'" in err
+    assert main(["no/such/checkpoint.pt"]) == 2
+    assert capsys.readouterr().err.startswith("error: ")

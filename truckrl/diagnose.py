@@ -1,0 +1,92 @@
+"""``python -m truckrl.diagnose``: where a ``uturn`` policy fails.
+
+    python -m truckrl.diagnose outputs/uturn3/checkpoints/last.pt --difficulty 4 --episodes 300
+
+Runs the checkpoint's mean action on the scenes that ``python -m truckrl.evaluate
+episodes=N seed=S`` scores and prints, per branch side and outcome, how many episodes pulled
+past the branch, turned round, how deep the trailer got into the branch, and what the collided
+trucks touched (:mod:`truckrl.agent.diagnosis`). ``--output FILE`` also writes the rows as JSON.
+Bad options print one line and exit with code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import NoReturn
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:  # one line, exit 2 (argparse prints usage too)
+        print(f"error: {message}", file=sys.stderr)
+        sys.exit(2)
+
+
+def parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="python -m truckrl.diagnose", description=__doc__.split("\n")[0])
+    p.add_argument("checkpoint", help="a uturn checkpoint (file or run dir, or pretrained:NAME)")
+    p.add_argument("--difficulty", type=float, help="default: the checkpoint's")
+    p.add_argument("--episodes", type=int, default=300, help="held-out scenes (default 300)")
+    p.add_argument("--seed", type=int, default=12345, help="scene seed (default 12345)")
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    p.add_argument("--output", help="JSON file for the rows")
+    return p
+
+
+def run(args: argparse.Namespace) -> list[dict]:
+    from truckrl.sim.validation import ConfigError
+
+    if not 1 <= args.episodes <= 100_000:
+        raise ConfigError(f"--episodes = {args.episodes} must be in [1, 100000]")
+    if args.seed < 0:
+        raise ConfigError(f"--seed = {args.seed} must be >= 0")
+    if args.threads < 1:
+        raise ConfigError(f"--threads = {args.threads} must be >= 1")
+    from truckrl.task import MAX_DIFFICULTY
+
+    if args.difficulty is not None and not 0 <= args.difficulty <= MAX_DIFFICULTY:
+        raise ConfigError(f"--difficulty = {args.difficulty} must be in [0, {MAX_DIFFICULTY}]")
+
+    import torch
+
+    from truckrl.agent.checkpoint import CheckpointError
+    from truckrl.agent.diagnosis import diagnose_uturn, format_diagnosis, summarize_diagnosis
+    from truckrl.agent.policy import load_policy
+
+    torch.set_num_threads(args.threads)
+    try:
+        policy = load_policy(args.checkpoint)
+    except CheckpointError as e:
+        raise ConfigError(str(e)) from None
+    if policy.env_config.task.name != "uturn":
+        raise ConfigError(
+            f"checkpoint {args.checkpoint}: task {policy.env_config.task.name!r}; the diagnosis "
+            "is for task 'uturn'"
+        )
+    difficulty = policy.difficulty if args.difficulty is None else args.difficulty
+    d = diagnose_uturn(policy.actor, policy.env_config, difficulty, args.episodes, args.seed)
+    rows = summarize_diagnosis(d)
+    print(f"{policy.path}: {args.episodes} scenes (seed {args.seed}) at difficulty {difficulty:g}")
+    print(format_diagnosis(rows))
+    if args.output:
+        Path(args.output).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.output).write_text(json.dumps(rows, indent=1))
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    from truckrl.sim.validation import ConfigError
+
+    try:
+        run(args)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
