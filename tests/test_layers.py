@@ -24,6 +24,7 @@ ENTRY = {
     "play",
     "imitate",
     "plan",
+    "diagnose",
     "export",
     "runner",
     "cli",
