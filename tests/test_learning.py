@@ -29,8 +29,8 @@ DOCK_FRAMES_TO_DIFFICULTY_2 = 6_000_000
 #: forward leg before it), so reaching it means the
 #: policy reversed the trailer part-way into the branch and drove out at difficulty 1 (15 m,
 #: 30 deg). Measured: 4.65 M frames with the route shaping (seed 0, 2 torch threads, 2.6 min),
-#: 4.46 M with the path shaping (the default since; seed 0, 1 thread, 3.6 min beside another
-#: run); difficulty 2 took 28.6 M, too long for this test. The budget leaves 1.5x for seed and
+#: 4.46 M with the path shaping (``env.task.reward.shaping=path``, seed 0, 1 thread, 3.6 min
+#: beside another run); difficulty 2 took 28.6 M, too long for this test. The budget leaves 1.5x for seed and
 #: machine differences.
 UTURN_FRAMES_TO_DIFFICULTY_1_5 = 7_000_000
 

@@ -17,6 +17,7 @@ from truckrl.task.config import EnvConfig
 from truckrl.task.uturn import UTurnTask, path_to_go, route_to_go, turning_point
 
 UTURN = {"task": {"name": "uturn"}}
+PATH = {"task": {"name": "uturn", "reward": {"shaping": "path"}}}
 TOL = 1e-3  # [m] float32 round-off at coordinates of O(100 m)
 
 
@@ -63,7 +64,8 @@ def test_errors_by_hand():
 def test_rewards_by_hand():
     """Route shaping: to_go = w (|p - T| + |T - g|) + (1 - w) |p - g|, w = (1 + cos(theta -
     theta_0)) / 2, with T = (10, 0), g = (0, 0), theta_0 = 0."""
-    task = UTurnTask(EnvConfig(task={"name": "uturn", "reward": {"shaping": "route"}}))
+    task = UTurnTask(EnvConfig(task=UTURN["task"]))
+    assert task.cfg.task.reward.shaping == "route"  # the default
     before = hand_state((3.0, 4.0, 0.0, 0.0))
     after = hand_state((6.0, 4.0, math.pi / 2, -0.5))
     for s in (before, after):
@@ -316,10 +318,7 @@ def test_pulled_latches_once_level_with_the_pull_point():
         if td["done"].any():
             break
     assert seen.any(), "no truck pulled past P"
-    # shaping path: the last feature is the phase (pulled + reached) / 2; no truck got deep
-    s = env.get_state()
-    assert (s["reached"][seen] == 0.0).all()
-    assert (td["observation"][seen, -1] == 0.5).all()
+    assert (td["observation"][seen, -1] == 1.0).all()
 
 
 def test_path_shaping_by_hand():
@@ -327,8 +326,7 @@ def test_path_shaping_by_hand():
     after it, |p - g| once T is reached; no heading blend. T = (10, 0), P = (20, 0),
     g = (0, 0); p = (3, 4) facing 90 deg off the start heading (the blend would halve the
     route there)."""
-    task = UTurnTask(EnvConfig(task=UTURN["task"]))
-    assert task.cfg.task.reward.shaping == "path"  # the default
+    task = UTurnTask(EnvConfig(task=PATH["task"]))
     s = hand_state((3.0, 4.0, math.pi / 2, 0.0))
     s["pull_point"] = torch.tensor([[20.0, 0.0]])
     s["pulled"], s["reached"] = torch.tensor([0.0]), torch.tensor([0.0])
@@ -354,7 +352,7 @@ def test_reached_latches_at_the_turning_point_depth():
     """Shaping path: T is the tractor rear axle of the reverse path's end (the in-branch start
     at sigma = 1); ``reached`` is 1 where the rear axle's depth along the branch axis (computed
     here from the scene metadata) is within reach_slack of T's, and a start there has it."""
-    env = TruckEnv(num_envs=400, config=UTURN, seed=7)
+    env = TruckEnv(num_envs=400, config=PATH, seed=7)
     env.set_difficulty(0.0)  # every start on the reverse path, most of them in the branch
     env.reset()
     s = env.get_state()
@@ -387,3 +385,7 @@ def test_reached_latches_at_the_turning_point_depth():
     rear_depth = ((s["turn_point"] + rear[:, None] * axis - mouth) * normal).sum(-1)
     short = info["branch_depth"] - rear_depth - half_w * a.cos().abs()
     assert short.min() > 0.5 - TOL and short.max() < 2.0 + TOL
+    # the observation's last feature is the phase (pulled + reached) / 2
+    td = env.reset()
+    s = env.get_state()
+    assert torch.equal(td["observation"][:, -1], 0.5 * (s["pulled"] + s["reached"]))
