@@ -346,8 +346,9 @@ class UTurnTask(Task):
         return depth >= -self.cfg.task.reward.reach_slack
 
     def step(self, s: dict[str, Any], action: Tensor) -> dict[str, Tensor]:
-        """The shared step, and ``pulled`` latches once the rear axle is level with ``P`` (a
-        state without ``pulled``, built by hand for the kinematics alone, steps without it)."""
+        """The shared step; ``pulled`` latches once the rear axle is level with ``P`` and
+        ``reached`` once it is within ``reach_slack`` of ``T``'s depth (a state without
+        ``pulled``, built by hand for the kinematics alone, steps without them)."""
         new = super().step(s, action)
         if "pulled" not in s:
             return new
