@@ -6,30 +6,20 @@ import math
 import pytest
 import torch
 
+from tests.sim.test_uturn_scene import FIXED_TRUCK
 from truckrl.agent.diagnosis import diagnose_uturn, summarize_diagnosis, trailer_depth
 from truckrl.diagnose import main
 from truckrl.sim.collision import touching
 from truckrl.sim.uturn_scene import DEAD_END_SLOT, SEGMENT_NAMES
 from truckrl.task import EnvConfig
 
-# a straight truck, rear axle at the origin heading +x: tractor from x = -0.9 to 3.8 + 1.4 =
-# 5.2, half width 1.225; trailer axle at x = -8.5, trailer from 1.25 to -10.75, half width 1.25
-TRUCK = dict(
-    wheelbase=3.8,
-    front_overhang=1.4,
-    rear_overhang=0.9,
-    tractor_width=2.45,
-    kingpin_offset=0.0,
-    trailer_wheelbase=8.5,
-    trailer_front_overhang=1.25,
-    trailer_rear_overhang=2.25,
-    trailer_width=2.5,
-    cab_gap=0.95,
-)
+# FIXED_TRUCK (wheelbase 3.8, overhangs 1.4 / 0.9, kingpin 0, trailer 8.5 + 1.25 / 2.25),
+# straight, rear axle at the origin heading +x: tractor from x = -0.9 to 3.8 + 1.4 = 5.2, half
+# width 1.225; trailer axle at x = -8.5, trailer from 1.25 to -10.75, half width 1.25
 
 
 def test_touching_names_the_body_by_hand():
-    params = {k: torch.tensor([v]) for k, v in TRUCK.items()}
+    params = {k: torch.tensor([v]) for k, v in FIXED_TRUCK.items()}
     pose = torch.zeros(1, 4)
     segs = torch.tensor(
         [
@@ -57,7 +47,7 @@ def test_trailer_depth_by_hand():
     branch: the branch-side curb line is x = 10 - 4 = 6 and 'into the branch' is -x. A truck
     heading -x with its rear axle at (2, 5): trailer axle 8.5 m behind it, at x = 10.5, which is
     4.5 m on the road side of the curb line: depth -4.5 - 4 = -8.5 - ... computed below."""
-    params = {k: torch.tensor([v]) for k, v in TRUCK.items()}
+    params = {k: torch.tensor([v]) for k, v in FIXED_TRUCK.items()}
     info = {
         "mouth_x": torch.tensor([10.0]),
         "mouth_y": torch.tensor([0.0]),

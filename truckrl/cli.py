@@ -15,6 +15,7 @@ what it accepts, and exit with code 2. ``--help`` prints the entry's template fr
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import dataclasses
 import difflib
@@ -64,6 +65,28 @@ def fail(message: str) -> NoReturn:
     sys.stdout.flush()
     print("error: " + " ".join(str(message).split()), file=sys.stderr, flush=True)
     sys.exit(2)
+
+
+class OneLineArgParser(argparse.ArgumentParser):
+    """``argparse`` for the entry points without Hydra (``plan``, ``imitate``, ``diagnose``): a
+    bad option prints one line (:func:`fail`, no usage block) and exits with code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        fail(message)
+
+
+def run_or_fail(run: Callable[[Any], Any], args: Any) -> int:
+    """Call ``run(args)``; what a user can cause (``ConfigError``, ``CheckpointError``) prints one
+    line ``error: ...`` on stderr and returns 2, else 0."""
+    from truckrl.agent.checkpoint import CheckpointError
+    from truckrl.sim.validation import ConfigError
+
+    try:
+        run(args)
+    except (ConfigError, CheckpointError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
 
 
 def to_config(schema: type[T], cfg: Any) -> T:

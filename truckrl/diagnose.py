@@ -15,17 +15,12 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import NoReturn
 
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:  # one line, exit 2 (argparse prints usage too)
-        print(f"error: {message}", file=sys.stderr)
-        sys.exit(2)
+from truckrl.cli import OneLineArgParser, run_or_fail
 
 
 def parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="python -m truckrl.diagnose", description=__doc__.split("\n")[0])
+    p = OneLineArgParser(prog="python -m truckrl.diagnose", description=__doc__.split("\n")[0])
     p.add_argument("checkpoint", help="a uturn checkpoint (file or run dir, or pretrained:NAME)")
     p.add_argument("--difficulty", type=float, help="default: the checkpoint's")
     p.add_argument("--episodes", type=int, default=300, help="held-out scenes (default 300)")
@@ -51,15 +46,11 @@ def run(args: argparse.Namespace) -> list[dict]:
 
     import torch
 
-    from truckrl.agent.checkpoint import CheckpointError
     from truckrl.agent.diagnosis import diagnose_uturn, format_diagnosis, summarize_diagnosis
     from truckrl.agent.policy import load_policy
 
     torch.set_num_threads(args.threads)
-    try:
-        policy = load_policy(args.checkpoint)
-    except CheckpointError as e:
-        raise ConfigError(str(e)) from None
+    policy = load_policy(args.checkpoint)
     if policy.env_config.task.name != "uturn":
         raise ConfigError(
             f"checkpoint {args.checkpoint}: task {policy.env_config.task.name!r}; the diagnosis "
@@ -77,15 +68,7 @@ def run(args: argparse.Namespace) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parser().parse_args(argv)
-    from truckrl.sim.validation import ConfigError
-
-    try:
-        run(args)
-    except ConfigError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
+    return run_or_fail(run, parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -25,8 +25,8 @@ import sys
 import time
 from datetime import datetime
 from pathlib import Path
-from typing import NoReturn
 
+from truckrl.cli import OneLineArgParser, run_or_fail
 from truckrl.configs import DemosConfig
 
 _DEMOS = DemosConfig()  # the defaults that `train demos.episodes=N` clones with too
@@ -40,14 +40,8 @@ NUMERIC = {
 }
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:
-        print(f"error: {message}", file=sys.stderr)
-        sys.exit(2)
-
-
 def parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = OneLineArgParser(
         prog="python -m truckrl.imitate",
         description="Clone planner demonstrations into a training checkpoint that "
         "`python -m truckrl.train resume=<out>` continues.",
@@ -142,14 +136,7 @@ def run(args: argparse.Namespace) -> Path:
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parser().parse_args(argv)
-    from truckrl.agent.checkpoint import CheckpointError
-    from truckrl.sim.validation import ConfigError
-
-    try:
-        run(args)
-    except (ConfigError, CheckpointError) as e:
-        print(f"error: {e}", file=sys.stderr)
+    if run_or_fail(run, parser().parse_args(argv)):
         sys.exit(2)
 
 

@@ -26,7 +26,7 @@ import sys
 import time
 from datetime import datetime
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 import torch
 import yaml
@@ -34,19 +34,13 @@ import yaml
 from truckrl.agent.categories import format_category_table, summarize_by_category, task_bins
 from truckrl.agent.planner import PlannerConfig, category_info, plan_episodes
 from truckrl.agent.rollout import summarize
-from truckrl.cli import git_revision
+from truckrl.cli import OneLineArgParser, git_revision, run_or_fail
 from truckrl.sim.scene import ROUTE_KEYS, ROUTE_NAMES
 from truckrl.sim.validation import ConfigError, build, check_range
 from truckrl.task import MAX_DIFFICULTY, OUTCOMES, EnvConfig
 
 #: ``--route`` names (spaces as underscores) -> route value.
 ROUTES = {name.replace(" ", "_"): i for i, name in enumerate(ROUTE_NAMES)}
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:  # one line, exit 2 (argparse prints usage too)
-        print(f"error: {message}", file=sys.stderr)
-        sys.exit(2)
 
 
 def _overrides(items: list[str], where: str) -> dict[str, Any]:
@@ -71,7 +65,7 @@ def _overrides(items: list[str], where: str) -> dict[str, Any]:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="python -m truckrl.plan", description=__doc__.split("\n\n")[0])
+    p = OneLineArgParser(prog="python -m truckrl.plan", description=__doc__.split("\n\n")[0])
     p.add_argument("--episodes", type=int, default=200, help="held-out scenes (default 200)")
     p.add_argument("--seed", type=int, default=12345, help="scene seed (default 12345)")
     p.add_argument("--difficulty", type=float, default=6.0, help="goal tolerance level (default 6)")
@@ -256,13 +250,7 @@ def print_report(s: dict, errors, rows: list[dict]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parser().parse_args(argv)
-    try:
-        run(args)
-    except ConfigError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
+    return run_or_fail(run, parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -64,17 +64,7 @@ def touching(
     Returns:
         ``(tractor [N, E], trailer [N, E])`` bool: segment ``e`` overlaps that body.
     """
-    grown = dict(params.items())
-    for key in ("tractor_width", "trailer_width"):
-        grown[key] = params[key] + 2.0 * across
-    for key in (
-        "front_overhang",
-        "rear_overhang",
-        "trailer_front_overhang",
-        "trailer_rear_overhang",
-    ):
-        grown[key] = params[key] + along
-    tractor, trailer, _ = truck_boxes(pose, grown)
+    tractor, trailer, _ = truck_boxes(pose, grown(params, along, across))
     return (
         segment_box_overlap(segments, *tractor, mask=mask),
         segment_box_overlap(segments, *trailer, mask=mask),
@@ -84,14 +74,22 @@ def touching(
 def widened(params: Mapping[str, Tensor], margin: float) -> dict[str, Tensor]:
     """Vehicle parameters whose bodies are ``margin`` [m] larger on every side (for a clearance
     test with :func:`truck_collides`)."""
+    return grown(params, margin, margin)
+
+
+def grown(
+    params: Mapping[str, Tensor], along: float | Tensor, across: float | Tensor
+) -> dict[str, Tensor]:
+    """Vehicle parameters whose bodies are ``along`` [m] longer at each end and ``across`` [m]
+    wider on each side (floats or ``[N]``)."""
     out = dict(params.items())
     for key in ("tractor_width", "trailer_width"):
-        out[key] = params[key] + 2.0 * margin
+        out[key] = params[key] + 2.0 * across
     for key in (
         "front_overhang",
         "rear_overhang",
         "trailer_front_overhang",
         "trailer_rear_overhang",
     ):
-        out[key] = params[key] + margin
+        out[key] = params[key] + along
     return out
