@@ -28,8 +28,8 @@
   ``reach_slack`` of ``T``'s depth along the branch axis. Why: under ``route`` (below) a policy
   backed its trailer only 5-10 m into the branch (``T`` there lay where the truck cannot go,
   and the heading blend paid for turning out early); from there the tractor, turning out across
-  the road, hit the far curb in 73 of 111 failed left-branch and 64 of 71 failed right-branch
-  episodes (300 scenes at difficulty 4). Backing the whole truck in first leaves the tractor the
+  the road, hit the far curb in 65 of 111 failed left-branch and 64 of 71 failed right-branch
+  episodes (300 scenes at difficulty 4, ``python -m truckrl.diagnose``). Backing the whole truck in first leaves the tractor the
   branch to turn in. Measured, it did worse: from scratch to the same 145 M frames, 1.6 %
   of 1,000 unseen scenes at difficulty 4 (``best.pt`` 6.2 %) against 18.0 % with ``route``;
   82 % of its episodes time out after pulling past the branch without backing into it, and the
