@@ -22,8 +22,8 @@ def test_gpu_experiment_asks_for_cuda_and_refuses_a_machine_without_it():
     import torch
 
     cfg = compose_config("train", "experiment=gpu")
-    assert (cfg.device, cfg.collector.num_envs, cfg.collector.steps_per_env) == ("cuda", 32768, 32)
-    assert (cfg.ppo.num_epochs, cfg.ppo.num_minibatches) == (5, 8)
+    assert (cfg.device, cfg.collector.num_envs, cfg.collector.steps_per_env) == ("cuda", 16384, 32)
+    assert (cfg.ppo.num_epochs, cfg.ppo.num_minibatches) == (5, 16)
     if torch.cuda.is_available():
         assert to_config(TrainConfig, cfg).device == "cuda"
     else:

@@ -1,6 +1,6 @@
 """Device placement: what keeps ``device=cuda`` correct on a machine without a GPU.
 
-No GPU was available to this project, so the CUDA path is guarded three ways:
+The CUDA path is guarded three ways (the CUDA-only tests ran on an H100, README, Benchmarks, GPU):
 
 * a static scan of the step path (simulator, tasks, env adapter, PPO): every tensor factory call
   names its ``device=``, except the listed host-side helpers (oracles, index tables that move with

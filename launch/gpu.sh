@@ -1,0 +1,57 @@
+#!/usr/bin/env bash
+# The GPU figures of the README (Benchmarks, GPU), in one go, on a machine with one CUDA GPU and
+# truckrl's dependencies importable. Run from the repository root:
+#
+#   launch/gpu.sh OUT [checks|train|uturn|all] [MINUTES]
+#
+#   checks: the CUDA tests (tests/test_device.py: no host sync in env.step, a collector + PPO
+#           iteration that stays on the GPU), `bench env --device cuda` at N = 4,096 ... 262,144
+#           and `bench train device=cuda experiment=gpu` at 32,768 trucks, 8 minibatches;
+#   train:  `python -m truckrl.train experiment=gpu` until difficulty 6 or MINUTES (default 8);
+#   uturn:  `python -m truckrl.train experiment=uturn` on the GPU's batch for MINUTES.
+#
+# Logs, JSON and the runs' train.log and last checkpoint land flat in OUT; the run folders
+# themselves go to RUNS (default outputs/gpu). Every step runs even if an earlier one fails; the
+# exit code is the number of failures.
+set -u
+OUT=${1:?usage: launch/gpu.sh OUT [checks|train|uturn|all] [MINUTES]}
+WHAT=${2:-all}
+MIN=${3:-8}
+RUNS=${RUNS:-outputs/gpu}
+mkdir -p "$OUT" "$RUNS"
+export PYTHONUNBUFFERED=1
+fails=0
+step() {  # step NAME COMMAND...: run, tee the log into OUT/NAME.log, count a failure
+    local name=$1; shift
+    echo "=== $name: $*"
+    local t0=$SECONDS
+    "$@" >"$OUT/$name.log" 2>&1; local rc=$?
+    tail -n 40 "$OUT/$name.log"
+    echo "=== $name: exit $rc after $((SECONDS - t0)) s"
+    [ $rc -eq 0 ] || fails=$((fails + 1))
+}
+
+{ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
+  python3 -c 'import torch, torchrl, tensordict; print("torch", torch.__version__, "torchrl", torchrl.__version__, "tensordict", tensordict.__version__, torch.cuda.get_device_name())'
+  nproc; } 2>&1 | tee "$OUT/device.txt"
+
+if [ "$WHAT" = checks ] || [ "$WHAT" = all ]; then
+    step tests python3 -m pytest -q -p no:cacheprovider tests/test_device.py -rs
+    step bench_env python3 -m truckrl.bench env --device cuda --envs 4096 65536 262144 --no-paper \
+        --out "$OUT"
+    step bench_train python3 -m truckrl.bench train device=cuda experiment=gpu \
+        collector.num_envs=32768 ppo.num_minibatches=8 --output "$OUT/bench_train.json"
+fi
+if [ "$WHAT" = train ] || [ "$WHAT" = all ]; then
+    step train python3 -m truckrl.train experiment=gpu max_minutes="$MIN" \
+        hydra.run.dir="$RUNS/train" log.progress_bar=false log.video_interval=0
+    cp "$RUNS/train/train.log" "$OUT/train_run.log"; cp "$RUNS/train/checkpoints/last.pt" "$OUT/train_last.pt"
+fi
+if [ "$WHAT" = uturn ]; then
+    step uturn python3 -m truckrl.train experiment=uturn device=cuda collector.num_envs=32768 \
+        collector.steps_per_env=32 ppo.num_epochs=5 ppo.num_minibatches=8 max_minutes="$MIN" \
+        hydra.run.dir="$RUNS/uturn" log.progress_bar=false log.video_interval=0
+    cp "$RUNS/uturn/train.log" "$OUT/uturn_run.log"; cp "$RUNS/uturn/checkpoints/last.pt" "$OUT/uturn_last.pt"
+    cp "$RUNS/uturn/checkpoints/best.pt" "$OUT/uturn_best.pt"
+fi
+exit $fails
