@@ -128,6 +128,57 @@ def test_cli_prints_categories_and_writes_them_beside_the_run(tiny_checkpoint, t
 
 
 @pytest.mark.e2e
+def test_env_overrides_change_the_scenes_of_this_evaluation_only(tiny_checkpoint, tmp_path):
+    """``env.task.scene.crossing_prob=0``: every scene is one straight road, the JSON says which
+    override made it and goes to its own file; the checkpoint's config is unchanged."""
+    run, _, tc = tiny_checkpoint
+    args = [f"checkpoint={run}", "episodes=12", "seed=8", "env.task.scene.crossing_prob=0.0"]
+    proc = run_cli("evaluate", *args, f"hydra.run.dir={tmp_path}")
+    assert proc.returncode == 0, proc.stderr
+    written = json.loads((run / "eval" / f"{tc.curriculum.start_difficulty:g}-8-task.scene.crossing_prob=0.0.json").read_text())  # fmt: skip
+    assert written["env_overrides"] == {"env.task.scene.crossing_prob": 0.0}
+    routes = {r["bin"]: r["count"] for r in written["categories"] if r["dimension"] == "route"}
+    assert routes == {"straight road": 12}
+    assert tc.env.task.scene.crossing_prob > 0  # the default mix has crossings
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ({"task": {"scene": {"crossing_prob": 2.0}}}, "env.task.scene.crossing_prob = 2.0 is outside"),
+        ({"lidar": {"num_beams": 32}}, "env.lidar.num_beams = 32: the policy was trained with 16"),
+        ({"task": {"name": "dock"}}, "env.task.name = 'dock': the policy was trained with 'intersection'"),
+        ({"task": {"scene": {"nope": 1}}}, "unknown field(s) ['nope'] for env.task.scene"),
+        ({"dt": {"x": 1}}, "env.dt is a value, not a group"),
+    ],
+)  # fmt: skip
+def test_bad_env_overrides_are_one_line(override, message):
+    from truckrl.evaluate import with_env_overrides
+    from truckrl.task import EnvConfig
+
+    with pytest.raises(ConfigError) as e:
+        with_env_overrides(EnvConfig(), override, fixed=True)
+    assert message in str(e.value) and "\n" not in str(e.value)
+
+
+def test_env_overrides_merge_into_the_rest():
+    from truckrl.evaluate import flat_overrides, with_env_overrides
+    from truckrl.task import EnvConfig
+
+    base = EnvConfig()
+    got = with_env_overrides(
+        base, {"task": {"scene": {"crossing_prob": 1.0}}, "max_steps": 300}, True
+    )
+    assert got.task.scene.crossing_prob == 1.0 and got.max_steps == 300
+    assert got.task.scene.road_width == base.task.scene.road_width and got.lidar == base.lidar
+    assert with_env_overrides(base, {}, True) is base
+    assert flat_overrides({"task": {"scene": {"a": 1}}, "b": 2}) == {
+        "env.task.scene.a": 1,
+        "env.b": 2,
+    }
+
+
+@pytest.mark.e2e
 def test_unwritable_output_is_one_line_before_any_episode(tiny_checkpoint, tmp_path):
     run, _, _ = tiny_checkpoint
     blocker = tmp_path / "a_file"

@@ -153,6 +153,36 @@ def test_resume_continues_counters_and_steps(run_dir):
     assert scalar_steps(run_dir) == [BATCH * i for i in range(1, 7)]
 
 
+def test_init_starts_a_new_run_from_another_runs_weights(run_dir, tmp_path):
+    """``init=``: a new run (counters from zero, its own config) whose network starts as the
+    given checkpoint's; with a learning rate of ~0 it ends one iteration where it started."""
+    frozen = ["ppo.lr=1e-12", "ppo.lr_min=1e-12", "ppo.lr_schedule=fixed", f"total_frames={BATCH}"]
+    proc = train(f"init={run_dir}", *frozen, "demos.episodes=3", f"hydra.run.dir={tmp_path}")
+    assert f"init: weights of {run_dir}/checkpoints/last.pt (iteration 4" in proc.stdout
+    assert "demos skipped" in proc.stdout and "demonstrations:" not in proc.stdout
+    new, old = load_checkpoint(tmp_path)["model"], load_checkpoint(run_dir)["model"]
+    assert load_checkpoint(tmp_path)["counters"]["iteration"] == 1
+    assert all(torch.allclose(new[k], old[k], atol=1e-6) for k in old)
+    fresh = tmp_path / "fresh"  # the same run without init: the weights are not the old ones
+    MEAN = "module.1.module.0.module.mean.weight"
+    train(*frozen, f"hydra.run.dir={fresh}")
+    assert not torch.allclose(load_checkpoint(fresh)["model"][MEAN], old[MEAN], atol=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("init=no/such/run", "error: checkpoint not found: no/such/run"),
+        ("env.lidar.num_beams=32", "16 LiDAR beams; this run's env gives 26 and 32"),
+    ],
+)
+def test_init_that_does_not_fit_is_one_line(run_dir, tmp_path, override, message):
+    proc = train(f"init={run_dir}", override, f"hydra.run.dir={tmp_path / 'r'}", check=False)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr and message in proc.stderr.strip().splitlines()[-1]
+    assert not (tmp_path / "r" / "checkpoints").exists()
+
+
 def test_sweep_runs_two_jobs(tmp_path):
     sweep = tmp_path / "sweep"
     videos = ["log.video_interval=1", "log.video_steps=5"]  # last override wins over TINY's

@@ -156,6 +156,11 @@ class TrainConfig:
         None, doc="checkpoint file or run dir to continue; auto: this run dir's, if any"
     )
     overwrite: bool = param(False, doc="start anew in a run dir that already holds a checkpoint")
+    init: str | None = param(
+        None,
+        doc="checkpoint, run dir or pretrained[:task] whose network weights start this new run "
+        "(fine-tuning; its optimizer, curriculum and counters are not used)",
+    )
     env: EnvConfig = field(default_factory=EnvConfig)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -199,10 +204,16 @@ class EvaluateConfig:
     output: str | None = param(
         None, doc="JSON file; null: <run dir of the checkpoint>/eval/<difficulty>-<seed>.json"
     )
+    #: Changes to the env config for this evaluation only (``env.task.scene.crossing_prob=0.7``
+    #: on the command line): nested field -> value, checked like any env config. The checkpoint
+    #: keeps its own; the task and the LiDAR beam count cannot change (the weights fit them).
+    env: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         validate(self)
         check_device("device", self.device)
+        if not isinstance(self.env, dict):
+            raise ConfigError(f"env: expected env.FIELD=VALUE overrides, got {self.env!r}")
         if not self.checkpoint and self.policy == "checkpoint":
             raise ConfigError(
                 "checkpoint is required: checkpoint=<file or run dir> (or policy=planner)"

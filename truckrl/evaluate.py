@@ -19,10 +19,11 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from omegaconf import DictConfig
 
@@ -30,17 +31,82 @@ from truckrl.cli import hydra_entry
 
 if TYPE_CHECKING:
     from truckrl.configs import EvaluateConfig
-    from truckrl.task import Quantity
+    from truckrl.task import EnvConfig, Quantity
 
 #: Folder of a run dir that default evaluation outputs go to.
 EVAL_DIR = "eval"
 
 
-def default_output(checkpoint: Path, difficulty: float, seed: int) -> Path:
-    """``<run dir>/eval/<difficulty>-<seed>.json`` (difficulty as ``2`` or ``2.5``)."""
+def flat_overrides(tree: dict, prefix: str = "env") -> dict[str, Any]:
+    """``{"task": {"scene": {"x": 1}}}`` -> ``{"env.task.scene.x": 1}``, in key order."""
+    out: dict[str, Any] = {}
+    for k, v in tree.items():
+        if isinstance(v, dict) and v:
+            out.update(flat_overrides(v, f"{prefix}.{k}"))
+        else:
+            out[f"{prefix}.{k}"] = v
+    return out
+
+
+def default_output(
+    checkpoint: Path, difficulty: float, seed: int, env_overrides: dict | None = None
+) -> Path:
+    """``<run dir>/eval/<difficulty>-<seed>.json`` (difficulty as ``2`` or ``2.5``); with env
+    overrides, ``<difficulty>-<seed>-<field>=<value>[-...].json``."""
     from truckrl.agent.session import run_dir_of
 
-    return run_dir_of(checkpoint) / EVAL_DIR / f"{difficulty:g}-{seed}.json"
+    return run_dir_of(checkpoint) / EVAL_DIR / f"{difficulty:g}-{seed}{_tag(env_overrides)}.json"
+
+
+def _tag(env_overrides: dict | None) -> str:
+    """``-<field>=<value>`` per env override, for file names ('' without any)."""
+    flat = flat_overrides(env_overrides or {})
+    tag = "".join(f"-{k.removeprefix('env.')}={v}" for k, v in flat.items())
+    return re.sub(r"[^A-Za-z0-9_.=+-]", "_", tag)
+
+
+def with_env_overrides(env_cfg: EnvConfig, overrides: dict, fixed: bool) -> EnvConfig:
+    """``env_cfg`` with ``overrides`` (nested field -> value) merged in and checked.
+
+    Args:
+        fixed: a trained policy is evaluated: its task and LiDAR beam count must stay.
+
+    Raises:
+        ConfigError: an unknown field or a bad value (naming ``env.<field>``), or a change of the
+            task or beam count under ``fixed``.
+    """
+    from dataclasses import asdict
+
+    from truckrl.sim.validation import ConfigError, build
+    from truckrl.task import EnvConfig
+
+    if not overrides:
+        return env_cfg
+
+    def merge(base: Any, new: dict, where: str) -> dict:
+        if not isinstance(base, dict):
+            raise ConfigError(f"{where} is a value, not a group: set {where}=VALUE")
+        out = dict(base)
+        for k, v in new.items():
+            out[k] = merge(out.get(k, {}), v, f"{where}.{k}") if isinstance(v, dict) else v
+        return out
+
+    name = (
+        overrides.get("task", {}).get("name") if isinstance(overrides.get("task"), dict) else None
+    )
+    if fixed and name is not None and name != env_cfg.task.name:  # before its fields are mixed in
+        raise ConfigError(
+            f"env.task.name = {name!r}: the policy was trained with {env_cfg.task.name!r}"
+        )
+    merged = build(EnvConfig, merge(asdict(env_cfg), overrides, "env"), "env")
+    if fixed:
+        for name, old, new in (
+            ("env.task.name", env_cfg.task.name, merged.task.name),
+            ("env.lidar.num_beams", env_cfg.lidar.num_beams, merged.lidar.num_beams),
+        ):
+            if old != new:
+                raise ConfigError(f"{name} = {new!r}: the policy was trained with {old!r}")
+    return merged
 
 
 def check_writable(path: Path) -> None:
@@ -139,11 +205,14 @@ def _run_checkpoint(ec: EvaluateConfig):
     from truckrl.agent.rollout import evaluate_policy
 
     policy = load_policy(ec.checkpoint, ec.device)
+    env_cfg = with_env_overrides(policy.env_config, ec.env, fixed=True)
     difficulty = policy.difficulty if ec.difficulty is None else ec.difficulty
-    output = Path(ec.output) if ec.output else default_output(policy.path, difficulty, ec.seed)
+    output = (
+        Path(ec.output) if ec.output else default_output(policy.path, difficulty, ec.seed, ec.env)
+    )
     check_writable(output)
     results, tolerance, errors = evaluate_policy(
-        policy.actor, policy.env_config, difficulty, ec.episodes, ec.seed, ec.device
+        policy.actor, env_cfg, difficulty, ec.episodes, ec.seed, ec.device
     )
     head = {
         "checkpoint": str(policy.path),
@@ -151,8 +220,9 @@ def _run_checkpoint(ec: EvaluateConfig):
         "iteration": int(policy.counters["iteration"]),
         "frames": int(policy.counters["frames"]),
         "difficulty": difficulty,
+        "env_overrides": flat_overrides(ec.env),
     }
-    return head, results, tolerance, errors, output, policy.env_config.task.name
+    return head, results, tolerance, errors, output, env_cfg.task.name
 
 
 def planner_config():
@@ -176,12 +246,14 @@ def _run_planner(ec: EvaluateConfig):
         policy = load_policy(ec.checkpoint, "cpu")
         env_cfg, path = policy.env_config, policy.path
         difficulty = policy.difficulty if ec.difficulty is None else ec.difficulty
-        output = default_output(path, difficulty, ec.seed)
+        output = default_output(path, difficulty, ec.seed, ec.env)
         output = output.with_name(f"planner-{output.name}")
     else:
         env_cfg, path = EnvConfig(), None
         difficulty = PLANNER_DIFFICULTY if ec.difficulty is None else ec.difficulty
-        output = Path("outputs") / EVAL_DIR / f"planner-{difficulty:g}-{ec.seed}.json"
+        name = f"planner-{difficulty:g}-{ec.seed}{_tag(ec.env)}.json"
+        output = Path("outputs") / EVAL_DIR / name
+    env_cfg = with_env_overrides(env_cfg, ec.env, fixed=False)
     output = Path(ec.output) if ec.output else output
     check_writable(output)
     t0 = time.perf_counter()
@@ -194,6 +266,7 @@ def _run_planner(ec: EvaluateConfig):
         "difficulty": difficulty,
         "planner_seconds": time.perf_counter() - t0,
         "planner_rollouts": int(results["rollouts"]),
+        "env_overrides": flat_overrides(ec.env),
     }
     return head, results, tolerance, errors, output, env_cfg.task.name
 
@@ -212,7 +285,13 @@ def print_table(s: dict, errors: tuple[Quantity, ...]) -> None:
         print(f"{f'{q.key} [{q.shown_unit}]':<30}{s[f'{key}_mean']:>10.3f}{s[f'{key}_p95']:>10.3f}")
 
 
-@hydra_entry("evaluate", "EvaluateConfig")
+def prepare_argv(argv: list[str]) -> list[str]:
+    """``env.FIELD=VALUE`` adds a key to the (empty) ``env`` overrides: Hydra spells that
+    ``+env.FIELD=VALUE``, so the ``+`` is added here."""
+    return ["+" + a if a.startswith("env.") else a for a in argv]
+
+
+@hydra_entry("evaluate", "EvaluateConfig", prepare="truckrl.evaluate:prepare_argv")
 def main(ec: EvaluateConfig, raw: DictConfig) -> None:
     evaluate(ec)
 

@@ -13,6 +13,11 @@ or the same difficulty and a higher success rate; ``checkpoint.keep_best``). A r
 ``total_frames`` or a signal (at the next iteration boundary, with a checkpoint, exit 0;
 :mod:`truckrl.agent.session`); its last lines say why and what to run next.
 
+``init=<checkpoint, run dir or pretrained[:task]>`` starts a new run from that checkpoint's
+network weights under this command line's config (fine-tuning: another scene mix, reward or PPO
+setting); its optimizer, curriculum and counters are not used, so give the difficulty to start
+at as ``curriculum.start_difficulty``.
+
 Resuming (``resume=<checkpoint or run dir>``) continues in the original run dir with the
 checkpoint's state and saved config but for :data:`~truckrl.configs.RESUME_OVERRIDES` (from the
 command line); an older checkpoint branches into a new run dir. ``total_frames`` counts all
@@ -36,9 +41,11 @@ log = logging.getLogger("truckrl.train")
 
 
 def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None = None,
-          stop: Any = None) -> Any:  # fmt: skip
+          stop: Any = None, init: dict | None = None) -> Any:  # fmt: skip
     """Run (or, with a loaded checkpoint ``state``, resume) one training job; return its counters.
     ``stop``: installed :class:`~truckrl.agent.session.StopSignals` (:func:`run` installs them).
+    ``init``: a loaded checkpoint whose network weights start a new run (``tc.init``; ignored
+    when resuming).
 
     One recipe, top to bottom like TorchRL's ``ppo_mujoco.py`` (create env, models, PPO,
     collector, logger; then the loop): splitting it would hide the order the parts depend on.
@@ -79,7 +86,16 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     ac = make_actor_critic(tc.model, num_obs, num_beams, env.action_spec.shape[-1])
     ac.model.to(tc.device)
     demos = None
-    if not state and tc.demos.episodes > 0:  # a start cloned from planner demonstrations
+    if not state and init is not None:  # fine-tuning: another run's weights, nothing else
+        try:
+            ckpt.load_init_weights(init, ac.model, num_obs, num_beams)
+        except ckpt.CheckpointError:
+            env.close()  # the workers, before the one-line error
+            raise
+        skipped = "; demos skipped" if tc.demos.episodes > 0 else ""
+        log.info(f"init: weights of {init['path']} (iteration {init['counters']['iteration']}, "
+                 f"difficulty {init['curriculum']['difficulty']:g}){skipped}")  # fmt: skip
+    elif not state and tc.demos.episodes > 0:  # a start cloned from planner demonstrations
         demos = clone_demonstrations(ac, tc, env)
     ppo = PPO(ac, tc.ppo)
     curriculum = Curriculum(tc.curriculum)
@@ -265,6 +281,7 @@ def clone_demonstrations(ac: Any, tc: Any, env: Any) -> dict:
 def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
     """Plan the session (run dir, resume or branch; :func:`~truckrl.agent.session.plan_session`)
     and train; ``tc.resume``'s checkpoint supplies the config but for ``RESUME_OVERRIDES``."""
+    from truckrl.agent.checkpoint import load_training_state
     from truckrl.agent.session import StopSignals, merged_config, plan_session
     from truckrl.configs import RESUME_OVERRIDES, TrainConfig
 
@@ -273,7 +290,8 @@ def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
         plan = plan_session(tc.resume, tc.overwrite, job_dir, explicit_dir)
         if plan.state:
             tc = merged_config(plan.state, asdict(tc), TrainConfig, RESUME_OVERRIDES, log)
-        return train(tc, plan.run_dir, plan.state, plan.parent, stop)
+        init = load_training_state(tc.init) if tc.init and not plan.state else None
+        return train(tc, plan.run_dir, plan.state, plan.parent, stop, init)
     finally:
         stop.restore()
 

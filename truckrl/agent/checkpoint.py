@@ -365,6 +365,32 @@ def load_weights(model: torch.nn.Module, weights: dict[str, Any], p: Path | str)
         ) from None
 
 
+def _check_sizes(state: dict[str, Any], num_obs: int, num_beams: int, env: str) -> None:
+    if (state["num_obs"], state["num_beams"]) != (num_obs, num_beams):
+        raise CheckpointError(
+            f"{state['path']}: the weights are for {state['num_obs']} observations and "
+            f"{state['num_beams']} LiDAR beams; {env} gives {num_obs} and {num_beams}"
+        )
+
+
+def load_init_weights(
+    state: dict[str, Any], model: torch.nn.Module, num_obs: int, num_beams: int
+) -> None:
+    """Start a new run from another checkpoint's network weights (``train init=``): the model,
+    log-std included; not its optimizer, curriculum, counters or config.
+
+    Args:
+        state: from :func:`load_training_state`.
+        model: built from this run's config; must have the same layers and sizes.
+        num_obs, num_beams: this run's env observation and LiDAR sizes.
+
+    Raises:
+        CheckpointError: one line naming what does not fit.
+    """
+    _check_sizes(state, num_obs, num_beams, "this run's env")
+    load_weights(model, state["model"], state["path"])
+
+
 def check_optimizer_state(
     optimizer: torch.optim.Optimizer, saved: dict[str, Any], p: Path | str, steps: int | None
 ) -> None:
@@ -420,11 +446,7 @@ def restore_training(
         CheckpointError: one line naming the first thing that does not fit.
     """
     p = state["path"]
-    if (state["num_obs"], state["num_beams"]) != (num_obs, num_beams):
-        raise CheckpointError(
-            f"{p}: the weights are for {state['num_obs']} observations and {state['num_beams']} "
-            f"LiDAR beams; its config's env gives {num_obs} and {num_beams}"
-        )
+    _check_sizes(state, num_obs, num_beams, "its config's env")
     load_weights(model, state["model"], p)
     steps = state["counters"]["iteration"] * steps_per_iteration
     check_optimizer_state(ppo.optimizer, state["ppo"]["optimizer"], p, steps)
