@@ -146,15 +146,15 @@ def test_env_overrides_change_the_scenes_of_this_evaluation_only(tiny_checkpoint
     ("override", "message"),
     [
         ({"task": {"scene": {"crossing_prob": 2.0}}}, "env.task.scene.crossing_prob = 2.0 is outside"),
-        ({"lidar": {"num_beams": 32}}, "env.lidar.num_beams = 32: the policy was trained with 16"),
-        ({"task": {"name": "dock"}}, "env.task.name = 'dock': the policy was trained with 'intersection'"),
+        ({"lidar": {"num_beams": 32}}, "env.lidar.num_beams = 32: the env has 16 beams"),
+        ({"task": {"name": "dock"}}, "env.task.name = 'dock': the env's task is 'intersection'"),
         ({"task": {"scene": {"nope": 1}}}, "unknown field(s) ['nope'] for env.task.scene"),
         ({"dt": {"x": 1}}, "env.dt is a value, not a group"),
     ],
 )  # fmt: skip
 def test_bad_env_overrides_are_one_line(override, message):
-    from truckrl.evaluate import with_env_overrides
     from truckrl.task import EnvConfig
+    from truckrl.task.config import with_env_overrides
 
     with pytest.raises(ConfigError) as e:
         with_env_overrides(EnvConfig(), override, fixed=True)
@@ -162,8 +162,8 @@ def test_bad_env_overrides_are_one_line(override, message):
 
 
 def test_env_overrides_merge_into_the_rest():
-    from truckrl.evaluate import flat_overrides, with_env_overrides
     from truckrl.task import EnvConfig
+    from truckrl.task.config import flat_overrides, with_env_overrides
 
     base = EnvConfig()
     got = with_env_overrides(

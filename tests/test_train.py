@@ -169,6 +169,18 @@ def test_init_starts_a_new_run_from_another_runs_weights(run_dir, tmp_path):
     assert not torch.allclose(load_checkpoint(fresh)["model"][MEAN], old[MEAN], atol=1e-3)
 
 
+def test_train_env_changes_the_training_envs_only(tmp_path):
+    """``train_env.tolerance.position=12``: the training envs run with 12 m at difficulty 0 (the
+    logged tolerance), while the checkpoint's ``env`` keeps the paper's 30 m for evaluation."""
+    train(f"total_frames={BATCH}", "train_env.tolerance.position=12", f"hydra.run.dir={tmp_path}")
+    acc = EventAccumulator(str(tmp_path / "tb"))
+    acc.Reload()
+    assert acc.Scalars("curriculum/tolerance_position_m")[0].value == pytest.approx(12.0)
+    saved = load_checkpoint(tmp_path)["config"]
+    assert "train_env:\n  tolerance:\n    position: 12" in saved
+    assert "tolerance:\n    position: 30.0" in saved
+
+
 @pytest.mark.parametrize(
     ("override", "message"),
     [

@@ -152,6 +152,13 @@ def exit_on_help(config_name: str) -> None:
         sys.exit(0)
 
 
+def plus_overrides(argv: list[str], prefix: str) -> list[str]:
+    """Prefix ``+`` to every ``<prefix>FIELD=VALUE`` argument: a key added to a config's free-form
+    dict field (``EvaluateConfig.env``, ``TrainConfig.train_env``), which Hydra spells
+    ``+<prefix>FIELD=VALUE``. Arguments already written with ``+`` are left alone."""
+    return ["+" + a if a.startswith(prefix) and "=" in a else a for a in argv]
+
+
 def hydra_entry(
     config_name: str,
     schema: type | str,

@@ -162,6 +162,11 @@ class TrainConfig:
         "(fine-tuning; its optimizer, curriculum and counters are not used)",
     )
     env: EnvConfig = field(default_factory=EnvConfig)
+    #: Changes to ``env`` for the training envs only (``train_env.task.scene.crossing_prob=1.0``
+    #: on the command line: nested field -> value, checked like any env config): a training
+    #: scene mix that differs from the task's. The held-out checks (and so best.pt), and
+    #: evaluate, play and export of the checkpoints, use ``env``. Kept on resume.
+    train_env: dict[str, Any] = field(default_factory=dict)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
@@ -173,6 +178,11 @@ class TrainConfig:
     def __post_init__(self) -> None:
         validate(self)
         check_device("device", self.device)
+        from truckrl.task.config import with_env_overrides
+
+        if not isinstance(self.train_env, dict):
+            raise ConfigError(f"train_env: expected train_env.FIELD=VALUE, got {self.train_env!r}")
+        with_env_overrides(self.env, self.train_env, fixed=True, where="train_env")
         if self.total_frames is None and self.max_minutes is None:
             raise ConfigError(
                 "set total_frames and/or max_minutes (both are null: the run might never stop)"

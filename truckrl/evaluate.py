@@ -23,7 +23,7 @@ import re
 import sys
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig
 
@@ -31,21 +31,10 @@ from truckrl.cli import hydra_entry
 
 if TYPE_CHECKING:
     from truckrl.configs import EvaluateConfig
-    from truckrl.task import EnvConfig, Quantity
+    from truckrl.task import Quantity
 
 #: Folder of a run dir that default evaluation outputs go to.
 EVAL_DIR = "eval"
-
-
-def flat_overrides(tree: dict, prefix: str = "env") -> dict[str, Any]:
-    """``{"task": {"scene": {"x": 1}}}`` -> ``{"env.task.scene.x": 1}``, in key order."""
-    out: dict[str, Any] = {}
-    for k, v in tree.items():
-        if isinstance(v, dict) and v:
-            out.update(flat_overrides(v, f"{prefix}.{k}"))
-        else:
-            out[f"{prefix}.{k}"] = v
-    return out
 
 
 def default_output(
@@ -60,53 +49,11 @@ def default_output(
 
 def _tag(env_overrides: dict | None) -> str:
     """``-<field>=<value>`` per env override, for file names ('' without any)."""
+    from truckrl.task.config import flat_overrides
+
     flat = flat_overrides(env_overrides or {})
     tag = "".join(f"-{k.removeprefix('env.')}={v}" for k, v in flat.items())
     return re.sub(r"[^A-Za-z0-9_.=+-]", "_", tag)
-
-
-def with_env_overrides(env_cfg: EnvConfig, overrides: dict, fixed: bool) -> EnvConfig:
-    """``env_cfg`` with ``overrides`` (nested field -> value) merged in and checked.
-
-    Args:
-        fixed: a trained policy is evaluated: its task and LiDAR beam count must stay.
-
-    Raises:
-        ConfigError: an unknown field or a bad value (naming ``env.<field>``), or a change of the
-            task or beam count under ``fixed``.
-    """
-    from dataclasses import asdict
-
-    from truckrl.sim.validation import ConfigError, build
-    from truckrl.task import EnvConfig
-
-    if not overrides:
-        return env_cfg
-
-    def merge(base: Any, new: dict, where: str) -> dict:
-        if not isinstance(base, dict):
-            raise ConfigError(f"{where} is a value, not a group: set {where}=VALUE")
-        out = dict(base)
-        for k, v in new.items():
-            out[k] = merge(out.get(k, {}), v, f"{where}.{k}") if isinstance(v, dict) else v
-        return out
-
-    name = (
-        overrides.get("task", {}).get("name") if isinstance(overrides.get("task"), dict) else None
-    )
-    if fixed and name is not None and name != env_cfg.task.name:  # before its fields are mixed in
-        raise ConfigError(
-            f"env.task.name = {name!r}: the policy was trained with {env_cfg.task.name!r}"
-        )
-    merged = build(EnvConfig, merge(asdict(env_cfg), overrides, "env"), "env")
-    if fixed:
-        for name, old, new in (
-            ("env.task.name", env_cfg.task.name, merged.task.name),
-            ("env.lidar.num_beams", env_cfg.lidar.num_beams, merged.lidar.num_beams),
-        ):
-            if old != new:
-                raise ConfigError(f"{name} = {new!r}: the policy was trained with {old!r}")
-    return merged
 
 
 def check_writable(path: Path) -> None:
@@ -203,6 +150,7 @@ def _run_checkpoint(ec: EvaluateConfig):
     task name)``."""
     from truckrl.agent.policy import load_policy
     from truckrl.agent.rollout import evaluate_policy
+    from truckrl.task.config import flat_overrides, with_env_overrides
 
     policy = load_policy(ec.checkpoint, ec.device)
     env_cfg = with_env_overrides(policy.env_config, ec.env, fixed=True)
@@ -239,6 +187,7 @@ def _run_planner(ec: EvaluateConfig):
 
     from truckrl.agent.planner import plan_episodes
     from truckrl.task import EnvConfig
+    from truckrl.task.config import flat_overrides, with_env_overrides
 
     if ec.checkpoint:
         from truckrl.agent.policy import load_policy
@@ -288,7 +237,9 @@ def print_table(s: dict, errors: tuple[Quantity, ...]) -> None:
 def prepare_argv(argv: list[str]) -> list[str]:
     """``env.FIELD=VALUE`` adds a key to the (empty) ``env`` overrides: Hydra spells that
     ``+env.FIELD=VALUE``, so the ``+`` is added here."""
-    return ["+" + a if a.startswith("env.") else a for a in argv]
+    from truckrl.cli import plus_overrides
+
+    return plus_overrides(argv, "env.")
 
 
 @hydra_entry("evaluate", "EvaluateConfig", prepare="truckrl.evaluate:prepare_argv")

@@ -13,6 +13,10 @@ or the same difficulty and a higher success rate; ``checkpoint.keep_best``). A r
 ``total_frames`` or a signal (at the next iteration boundary, with a checkpoint, exit 0;
 :mod:`truckrl.agent.session`); its last lines say why and what to run next.
 
+``train_env.FIELD=VALUE`` changes the env of the training envs only (a training scene mix,
+e.g. ``train_env.task.scene.crossing_prob=1.0``); held-out checks, ``best.pt`` and evaluating
+the checkpoints use ``env``.
+
 ``init=<checkpoint, run dir or pretrained[:task]>`` starts a new run from that checkpoint's
 network weights under this command line's config (fine-tuning: another scene mix, reward or PPO
 setting); its optimizer, curriculum and counters are not used, so give the difficulty to start
@@ -67,6 +71,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     from truckrl.cli import git_revision, seed_everything
     from truckrl.run_logger import RunLogger, flatten
     from truckrl.task import make_task
+    from truckrl.task.config import with_env_overrides
 
     cfg_yaml = yaml.safe_dump(asdict(tc), sort_keys=False)
     source = git_revision()  # once: checkpoints record the commit the session started from
@@ -77,7 +82,8 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
 
     # Create environment
     c = tc.collector
-    env = make_env(tc.env, c.workers, c.num_envs, tc.seed, counters.iteration, tc.device)
+    train_env = with_env_overrides(tc.env, tc.train_env, fixed=True, where="train_env")
+    env = make_env(train_env, c.workers, c.num_envs, tc.seed, counters.iteration, tc.device)
     num_obs = env.observation_spec["observation"].shape[-1]
     num_beams = env.observation_spec["lidar"].shape[-1]
     task = make_task(tc.env)  # the task's vocabulary: reward terms and errors
@@ -296,7 +302,16 @@ def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
         stop.restore()
 
 
-@hydra_entry("train", "TrainConfig", prepare="truckrl.agent.session:prepare_argv")
+def prepare_argv(argv: list[str]) -> list[str]:
+    """``train_env.FIELD=VALUE`` as Hydra's ``+train_env.FIELD=VALUE`` (a key of a free-form
+    dict), then the run-dir checks of :func:`truckrl.agent.session.prepare_argv`."""
+    from truckrl.agent.session import prepare_argv as check_run_dir
+    from truckrl.cli import plus_overrides
+
+    return check_run_dir(plus_overrides(argv, "train_env."))
+
+
+@hydra_entry("train", "TrainConfig", prepare="truckrl.train:prepare_argv")
 def main(tc: Any, raw: Any) -> None:
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode

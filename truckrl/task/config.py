@@ -8,8 +8,9 @@ structured configs (``truckrl/entry.py``); YAML files only hold presets.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from truckrl.sim.control import ControlConfig
@@ -114,3 +115,54 @@ class EnvConfig:
             self.task = build(task_class(name).config_class, self.task, "env.task")
         elif not isinstance(self.task, TaskConfig):
             raise ConfigError(f"env.task must be a task config, got {self.task!r}")
+
+
+def flat_overrides(tree: dict, prefix: str = "env") -> dict[str, Any]:
+    """``{"task": {"scene": {"x": 1}}}`` -> ``{"env.task.scene.x": 1}``, in key order."""
+    out: dict[str, Any] = {}
+    for k, v in tree.items():
+        if isinstance(v, dict) and v:
+            out.update(flat_overrides(v, f"{prefix}.{k}"))
+        else:
+            out[f"{prefix}.{k}"] = v
+    return out
+
+
+def with_env_overrides(
+    env_cfg: EnvConfig, overrides: dict, fixed: bool, where: str = "env"
+) -> EnvConfig:
+    """``env_cfg`` with ``overrides`` (nested field -> value) merged in and checked.
+
+    Args:
+        fixed: the task and the LiDAR beam count must stay (a policy's observation sizes).
+        where: the overrides' name in error messages (``env``, ``train_env``).
+
+    Raises:
+        ConfigError: an unknown field or a bad value (naming ``<where>.<field>``), or a change
+            of the task or beam count under ``fixed``.
+    """
+    if not overrides:
+        return env_cfg
+
+    def merge(base: Any, new: dict, where: str) -> dict:
+        if not isinstance(base, dict):
+            raise ConfigError(f"{where} is a value, not a group: set {where}=VALUE")
+        out = dict(base)
+        for k, v in new.items():
+            out[k] = merge(out.get(k, {}), v, f"{where}.{k}") if isinstance(v, dict) else v
+        return out
+
+    task = overrides.get("task")
+    name = task.get("name") if isinstance(task, dict) else None
+    if fixed and name is not None and name != env_cfg.task.name:  # before its fields are mixed in
+        raise ConfigError(f"{where}.task.name = {name!r}: the env's task is {env_cfg.task.name!r}")
+    try:
+        merged = build(EnvConfig, merge(asdict(env_cfg), overrides, where), "env")
+    except ConfigError as e:  # build names fields env.*: name them as the user wrote them
+        raise ConfigError(re.sub(r"\benv\.", f"{where}.", str(e), count=1)) from None
+    if fixed and merged.lidar.num_beams != env_cfg.lidar.num_beams:
+        raise ConfigError(
+            f"{where}.lidar.num_beams = {merged.lidar.num_beams}: the env has "
+            f"{env_cfg.lidar.num_beams} beams (the policy's input size)"
+        )
+    return merged
