@@ -2,19 +2,18 @@
 # The GPU figures of the README (Benchmarks, GPU), in one go, on a machine with one CUDA GPU and
 # truckrl's dependencies importable. Run from the repository root:
 #
-#   launch/gpu.sh OUT [checks|train|uturn|all] [MINUTES]
+#   launch/gpu.sh OUT [checks|train|all] [MINUTES]
 #
 #   checks: the CUDA tests (tests/test_device.py: no host sync in env.step, a collector + PPO
 #           iteration that stays on the GPU), `bench env --device cuda` at N = 4,096 ... 262,144
 #           and `bench train device=cuda experiment=gpu` at 32,768 trucks, 8 minibatches;
 #   train:  `python -m truckrl.train experiment=gpu` until difficulty 6 or MINUTES (default 8);
-#   uturn:  `python -m truckrl.train experiment=uturn` on the GPU's batch for MINUTES.
 #
 # Logs, JSON and the runs' train.log and last checkpoint land flat in OUT; the run folders
 # themselves go to RUNS (default outputs/gpu). Every step runs even if an earlier one fails; the
 # exit code is the number of failures.
 set -u
-OUT=${1:?usage: launch/gpu.sh OUT [checks|train|uturn|all] [MINUTES]}
+OUT=${1:?usage: launch/gpu.sh OUT [checks|train|all] [MINUTES]}
 WHAT=${2:-all}
 MIN=${3:-8}
 RUNS=${RUNS:-outputs/gpu}
@@ -46,12 +45,5 @@ if [ "$WHAT" = train ] || [ "$WHAT" = all ]; then
     step train python3 -m truckrl.train experiment=gpu max_minutes="$MIN" \
         hydra.run.dir="$RUNS/train" log.progress_bar=false log.video_interval=0
     cp "$RUNS/train/train.log" "$OUT/train_run.log"; cp "$RUNS/train/checkpoints/last.pt" "$OUT/train_last.pt"
-fi
-if [ "$WHAT" = uturn ]; then
-    step uturn python3 -m truckrl.train experiment=uturn device=cuda collector.num_envs=32768 \
-        collector.steps_per_env=32 ppo.num_epochs=5 ppo.num_minibatches=8 max_minutes="$MIN" \
-        hydra.run.dir="$RUNS/uturn" log.progress_bar=false log.video_interval=0
-    cp "$RUNS/uturn/train.log" "$OUT/uturn_run.log"; cp "$RUNS/uturn/checkpoints/last.pt" "$OUT/uturn_last.pt"
-    cp "$RUNS/uturn/checkpoints/best.pt" "$OUT/uturn_best.pt"
 fi
 exit $fails
