@@ -162,11 +162,11 @@ class TrainConfig:
         "(fine-tuning; its optimizer, curriculum and counters are not used)",
     )
     env: EnvConfig = field(default_factory=EnvConfig)
-    #: Changes to ``env`` for the training envs only (``train_env.task.scene.crossing_prob=1.0``
-    #: on the command line: nested field -> value, checked like any env config): a training
-    #: scene mix that differs from the task's. The held-out checks (and so best.pt), and
-    #: evaluate, play and export of the checkpoints, use ``env``. Kept on resume.
-    train_env: dict[str, Any] = field(default_factory=dict)
+    train_env: dict[str, Any] = param(
+        {},
+        doc="env changes for the training envs only (train_env.task.scene.crossing_prob=1.0); "
+        "held-out checks, best.pt, evaluate and play use env; kept on resume",
+    )
     collector: CollectorConfig = field(default_factory=CollectorConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
@@ -180,8 +180,6 @@ class TrainConfig:
         check_device("device", self.device)
         from truckrl.task.config import with_env_overrides
 
-        if not isinstance(self.train_env, dict):
-            raise ConfigError(f"train_env: expected train_env.FIELD=VALUE, got {self.train_env!r}")
         with_env_overrides(self.env, self.train_env, fixed=True, where="train_env")
         if self.total_frames is None and self.max_minutes is None:
             raise ConfigError(
@@ -214,16 +212,15 @@ class EvaluateConfig:
     output: str | None = param(
         None, doc="JSON file; null: <run dir of the checkpoint>/eval/<difficulty>-<seed>.json"
     )
-    #: Changes to the env config for this evaluation only (``env.task.scene.crossing_prob=0.7``
-    #: on the command line): nested field -> value, checked like any env config. The checkpoint
-    #: keeps its own; the task and the LiDAR beam count cannot change (the weights fit them).
-    env: dict[str, Any] = field(default_factory=dict)
+    env: dict[str, Any] = param(
+        {},
+        doc="the checkpoint's env config changed for this evaluation only "
+        "(env.task.scene.crossing_prob=0.7); not the task or the beam count",
+    )
 
     def __post_init__(self) -> None:
         validate(self)
         check_device("device", self.device)
-        if not isinstance(self.env, dict):
-            raise ConfigError(f"env: expected env.FIELD=VALUE overrides, got {self.env!r}")
         if not self.checkpoint and self.policy == "checkpoint":
             raise ConfigError(
                 "checkpoint is required: checkpoint=<file or run dir> (or policy=planner)"

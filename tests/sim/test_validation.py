@@ -255,3 +255,19 @@ def test_every_config_names_its_prefix_in_errors(cls, prefix):
         with pytest.raises(ConfigError) as info:
             cls(**{f.name: "bad" if spec_of(cls, f.name).choices is None else 7})
         assert str(info.value).startswith(f"{prefix}.{f.name}"), str(info.value)
+
+
+@dataclasses.dataclass
+class _Overrides:
+    changes: dict = param({}, doc="FIELD=VALUE changes")
+
+
+def test_dict_field_takes_a_mapping_and_each_instance_gets_its_own():
+    a, b = _Overrides(), _Overrides()
+    a.changes["x"] = 1
+    assert b.changes == {} and _Overrides(changes={"y": {"z": 2}}).changes == {"y": {"z": 2}}
+    validate(_Overrides(changes={"k": 1}))
+    with pytest.raises(ConfigError, match=r"^changes = 3 must be FIELD=VALUE overrides$"):
+        validate(_Overrides(changes=3))
+    row = spec_table(_Overrides)[0]
+    assert row[0] == "changes" and row[3] == "FIELD=VALUE, ..." and row[4] == "FIELD=VALUE changes"

@@ -158,6 +158,8 @@ def param(
     spec = Spec(
         lo, hi, lo_open, hi_open, tuple(choices) if choices else None, unit, doc, source, min_len
     )
+    if isinstance(default, dict):  # a mutable default: each instance gets its own copy
+        return dataclasses.field(default_factory=default.copy, metadata={"spec": spec})
     return dataclasses.field(default=default, metadata={"spec": spec})
 
 
@@ -216,6 +218,10 @@ def _check_value(name: str, value: Any, typ: Any, spec: Spec) -> Any:
             return None
         (inner,) = [a for a in args if a is not type(None)]
         return _check_value(name, value, inner, spec)
+    if origin is dict or typ is dict:  # free-form overrides (FIELD=VALUE): checked where they are applied
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{name} = {value!r} must be FIELD=VALUE overrides")
+        return value
     if origin is tuple:
         if isinstance(value, str) or not isinstance(value, Sequence):
             raise ConfigError(f"{name} = {value!r} must be a list")
@@ -326,4 +332,6 @@ def _allowed_text(typ: Any, spec: Spec) -> str:
         return f"{_allowed_text(inner, spec)} or null"
     if typ is bool:
         return "true | false"
+    if typ is dict or typing.get_origin(typ) is dict:
+        return "FIELD=VALUE, ..."
     return spec.range_text()
