@@ -218,7 +218,8 @@ def _check_value(name: str, value: Any, typ: Any, spec: Spec) -> Any:
             return None
         (inner,) = [a for a in args if a is not type(None)]
         return _check_value(name, value, inner, spec)
-    if origin is dict or typ is dict:  # free-form overrides (FIELD=VALUE): checked where they are applied
+    # free-form overrides (FIELD=VALUE): checked where they are applied
+    if origin is dict or typ is dict:
         if not isinstance(value, Mapping):
             raise ConfigError(f"{name} = {value!r} must be FIELD=VALUE overrides")
         return value
