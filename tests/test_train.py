@@ -157,8 +157,9 @@ def test_init_starts_a_new_run_from_another_runs_weights(run_dir, tmp_path):
     """``init=``: a new run (counters from zero, its own config) whose network starts as the
     given checkpoint's; with a learning rate of ~0 it ends one iteration where it started."""
     frozen = ["ppo.lr=1e-12", "ppo.lr_min=1e-12", "ppo.lr_schedule=fixed", f"total_frames={BATCH}"]
+    it = load_checkpoint(run_dir)["counters"]["iteration"]  # shared: other tests resume run_dir
     proc = train(f"init={run_dir}", *frozen, "demos.episodes=3", f"hydra.run.dir={tmp_path}")
-    assert f"init: weights of {run_dir}/checkpoints/last.pt (iteration 4" in proc.stdout
+    assert f"init: weights of {run_dir}/checkpoints/last.pt (iteration {it}," in proc.stdout
     assert "demos skipped" in proc.stdout and "demonstrations:" not in proc.stdout
     new, old = load_checkpoint(tmp_path)["model"], load_checkpoint(run_dir)["model"]
     assert load_checkpoint(tmp_path)["counters"]["iteration"] == 1
