@@ -159,3 +159,35 @@ def test_advantages_of_rows_that_are_not_trajectories_use_the_critic_on_every_ne
     ref = batch.clone()
     GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=ac.critic, average_gae=False)(ref)
     torch.testing.assert_close(ours["advantage"], ref["advantage"], rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("max_std", [None, 0.55])
+def test_max_std_bounds_the_std_that_the_entropy_bonus_grows(max_std):
+    """A large entropy bonus and a fixed learning rate grow the std past 0.55 in a few steps;
+    with ``model.max_std=0.55`` both the parameter and the sampled scale stop exactly there."""
+    torch.manual_seed(0)
+    ac = make_actor_critic(ModelConfig(init_std=0.5, max_std=max_std), num_obs=26, num_beams=16)
+    cfg = PPOConfig(num_minibatches=4, num_epochs=4, lr=1e-2, lr_schedule="fixed")
+    ppo = PPO(ac, PPOConfig(**{**cfg.__dict__, "entropy_coeff": 10.0}))
+    ppo.update(rollout(ac))
+    std = ac.gaussian.log_std.detach().exp()
+    if max_std is None:
+        assert (std > 0.57).all()  # 16 Adam steps of ~1e-2 up in log-std: ~0.5 * e^0.16
+    else:
+        assert torch.allclose(std, torch.full((2,), 0.55))
+        td = rollout(ac, seed=1)
+        assert torch.allclose(td["scale"], torch.tensor(0.55))
+        assert torch.allclose(ac.action_std(), torch.tensor(0.55))
+
+
+def test_max_std_clamps_a_loaded_std_and_rejects_a_larger_init():
+    ac = make_actor_critic(ModelConfig(max_std=1.0), num_obs=26, num_beams=16)
+    with torch.no_grad():
+        ac.gaussian.log_std.fill_(2.2)  # a checkpoint trained without the bound: std ~9
+    assert torch.allclose(rollout(ac)["scale"], torch.tensor(1.0))
+    ac.gaussian.project_()
+    assert torch.allclose(ac.gaussian.log_std, torch.zeros(2))
+    with pytest.raises(ConfigError, match=r"model.init_std = 2.0 must be <= model.max_std = 1.0"):
+        ModelConfig(init_std=2.0, max_std=1.0)
+    with pytest.raises(ConfigError, match="model.max_std"):
+        ModelConfig(max_std=0.0)

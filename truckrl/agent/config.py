@@ -49,6 +49,15 @@ class ModelConfig:
         doc="initial std of the Gaussian policy",
         source="paper",
     )
+    max_std: float | None = param(
+        None,
+        lo=0.0,
+        lo_open=True,
+        hi=100.0,
+        unit="action units",
+        doc="upper bound on the policy std (null: none, the paper's); the env clamps actions to "
+        "[-1, 1], so without a bound the entropy bonus can grow the std without cost",
+    )
     # small, so that the first actions are set by the exploration noise, not by random weights
     actor_init_gain: float = param(
         0.01, lo=0.0, lo_open=True, hi=10.0, unit="-", doc="scale of the initial actor-mean weights"
@@ -58,6 +67,10 @@ class ModelConfig:
         validate(self, "model")
         if self.kernel_size % 2 != 1:
             raise ConfigError(f"model.kernel_size = {self.kernel_size} must be odd")
+        if self.max_std is not None and self.init_std > self.max_std:
+            raise ConfigError(
+                f"model.init_std = {self.init_std} must be <= model.max_std = {self.max_std}"
+            )
 
 
 @dataclass(frozen=True)

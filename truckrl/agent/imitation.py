@@ -135,6 +135,7 @@ def set_action_std(ac: ActorCritic, std: float) -> None:
     """Set the policy's state-independent std [action units] for every action dimension."""
     with torch.no_grad():
         ac.gaussian.log_std.fill_(math.log(std))
+    ac.gaussian.project_()  # within model.max_std
 
 
 def plan_demos(plan: dict[str, Any]) -> tuple[list[int], list[list[list[float]]]]:

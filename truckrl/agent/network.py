@@ -181,17 +181,39 @@ class GaussianHead(nn.Module):
     Forward: ``hidden [*B, H]`` -> ``(loc [*B, A], scale [*B, A])``.
     """
 
-    def __init__(self, hidden: int, action_dim: int, init_std: float, init_gain: float) -> None:
+    def __init__(
+        self,
+        hidden: int,
+        action_dim: int,
+        init_std: float,
+        init_gain: float,
+        max_std: float | None = None,
+    ) -> None:
         super().__init__()
         self.mean = nn.Linear(hidden, action_dim)
         with torch.no_grad():
             self.mean.weight.mul_(init_gain)
             self.mean.bias.zero_()
         self.log_std = nn.Parameter(torch.full((action_dim,), math.log(init_std)))
+        self.max_log_std = None if max_std is None else math.log(max_std)
+
+    def effective_log_std(self) -> Tensor:
+        """``log_std`` ``[A]`` bounded above by ``log(max_std)`` (as is without a bound)."""
+        if self.max_log_std is None:
+            return self.log_std
+        return self.log_std.clamp(max=self.max_log_std)
+
+    @torch.no_grad()
+    def project_(self) -> None:
+        """Clamp the ``log_std`` parameter itself into its bound, so that a parameter above it
+        (a loaded checkpoint's) does not sit where the clamp passes no gradient. The optimiser
+        calls it after each step."""
+        if self.max_log_std is not None:
+            self.log_std.clamp_(max=self.max_log_std)
 
     def forward(self, hidden: Tensor) -> tuple[Tensor, Tensor]:
         loc = self.mean(hidden)
-        return loc, self.log_std.exp().expand_as(loc)
+        return loc, self.effective_log_std().exp().expand_as(loc)
 
 
 @dataclass
@@ -221,7 +243,7 @@ class ActorCritic:
 
     def action_std(self) -> Tensor:
         """Current policy std ``[A]`` in action units."""
-        return self.gaussian.log_std.detach().exp()
+        return self.gaussian.effective_log_std().detach().exp()
 
 
 def make_actor_critic(
@@ -237,7 +259,9 @@ def make_actor_critic(
     """
     encoder = TwoBranchTrunk(num_obs, num_beams, cfg)
     trunk = TensorDictModule(encoder, in_keys=[OBS_KEY, LIDAR_KEY], out_keys=[HIDDEN_KEY])
-    gaussian = GaussianHead(cfg.fusion_dim, action_dim, cfg.init_std, cfg.actor_init_gain)
+    gaussian = GaussianHead(
+        cfg.fusion_dim, action_dim, cfg.init_std, cfg.actor_init_gain, cfg.max_std
+    )
     head = TensorDictModule(
         gaussian,
         in_keys=[HIDDEN_KEY],

@@ -269,6 +269,7 @@ class PPO:
                 with _span(timings, "optimizer", dev):
                     grad_norm = torch.nn.utils.clip_grad_norm_(params, self.cfg.max_grad_norm)
                     self.optimizer.step()
+                    self.ac.gaussian.project_()
                 with _span(timings, "metrics", dev):
                     for k in keys:
                         sums[k] += out[k].detach()
