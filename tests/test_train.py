@@ -64,6 +64,8 @@ def test_run_writes_events_config_and_checkpoint(run_dir):
         "train/kl",
         "train/lr",
         "train/action_std",
+        "train/action_std_longitudinal",
+        "train/action_std_lateral",
         "episode/success_ema",
         "curriculum/difficulty",
         "curriculum/tolerance_position_m",

@@ -10,6 +10,13 @@ and prints the outcome rates, the final errors and the per-category table
 holds the summary, the category rows, the timing and, per episode, its route, vehicle, outcome,
 errors and the action sequence (replay it with ``TruckEnv.set_state`` and ``step``).
 
+``--policy CHECKPOINT`` (a run dir, a ``.pt`` file or ``pretrained``) also drives each scene
+with that policy's mean action and replays its action sequence beside the planner's candidates:
+a scene counts as solvable when either replay succeeds. The env config is then the
+checkpoint's (``--env`` overrides on top; the task and beam count stay), so the scenes are those
+of ``python -m truckrl.evaluate checkpoint=CHECKPOINT``; the report gives the planner alone, the
+policy alone and either, overall and per category.
+
 ``--env KEY=VALUE`` overrides an env config field (``max_steps=300``,
 ``task.scene.road_width=[14,18]``, ``control.lateral=angle``; values in YAML), ``--planner
 KEY=VALUE`` a :class:`~truckrl.agent.planner.PlannerConfig` field. Bad options print one line and
@@ -93,6 +100,11 @@ def parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="env config field, e.g. max_steps=300 (repeatable)",
     )
+    p.add_argument(
+        "--policy",
+        metavar="CHECKPOINT",
+        help="also replay this checkpoint's mean actions: solvable = planner or policy solves it",
+    )
     p.add_argument("--no-compile", action="store_true", help="eager rollouts (no ~15 s compile)")
     p.add_argument("--device", default="cpu", help="cpu | cuda[:i]")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
@@ -101,8 +113,13 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-def configure(args: argparse.Namespace) -> tuple[EnvConfig, PlannerConfig]:
-    """Validate the options; raise :class:`ConfigError` naming the bad one."""
+def configure(args: argparse.Namespace) -> tuple[EnvConfig, PlannerConfig, Any]:
+    """Validate the options; raise :class:`ConfigError` naming the bad one (a bad ``--policy``:
+    :class:`~truckrl.agent.checkpoint.CheckpointError`).
+
+    Returns:
+        ``(env config, planner config, the loaded --policy or None)``.
+    """
     if args.episodes < 1 or args.episodes > 1_000_000:
         raise ConfigError(f"--episodes = {args.episodes} must be in [1, 1000000]")
     if args.seed < 0:
@@ -112,14 +129,22 @@ def configure(args: argparse.Namespace) -> tuple[EnvConfig, PlannerConfig]:
         raise ConfigError(f"--threads = {args.threads} must be >= 1")
     if args.device != "cpu" and not (args.device.startswith("cuda") and torch.cuda.is_available()):
         raise ConfigError(f"--device = {args.device!r}: not available (cpu, or cuda with a GPU)")
-    env_cfg = build(EnvConfig, _overrides(args.env, "env"), "env")
+    policy = None
+    if args.policy:
+        from truckrl.agent.policy import load_policy
+        from truckrl.task.config import with_env_overrides
+
+        policy = load_policy(args.policy, args.device)
+        env_cfg = with_env_overrides(policy.env_config, _overrides(args.env, "env"), fixed=True)
+    else:
+        env_cfg = build(EnvConfig, _overrides(args.env, "env"), "env")
     planner = _overrides(args.planner, "planner")
     for name in ("samples", "iterations", "scenes_per_batch"):
         if getattr(args, name) is not None:
             planner[name] = getattr(args, name)
     if args.no_compile:
         planner["compile"] = False
-    return env_cfg, build(PlannerConfig, planner, "planner")
+    return env_cfg, build(PlannerConfig, planner, "planner"), policy
 
 
 def _jsonable(x: Any) -> Any:
@@ -131,7 +156,7 @@ def _jsonable(x: Any) -> Any:
 
 
 def run(args: argparse.Namespace) -> dict:
-    env_cfg, pc = configure(args)
+    env_cfg, pc, loaded = configure(args)
     torch.set_num_threads(args.threads)
     indices = None
     if args.route:
@@ -153,7 +178,15 @@ def run(args: argparse.Namespace) -> dict:
             print(f"  {now:7.1f} s  {done}/{total} scenes planned", file=sys.stderr, flush=True)
 
     results, (tol_pos, tol_deg), errors = plan_episodes(
-        env_cfg, args.difficulty, args.episodes, args.seed, pc, args.device, indices, progress
+        env_cfg,
+        args.difficulty,
+        args.episodes,
+        args.seed,
+        pc,
+        args.device,
+        indices,
+        progress,
+        loaded.actor if loaded else None,
     )
     seconds = time.perf_counter() - t0
     n = int(results["success"].numel())
@@ -161,6 +194,14 @@ def run(args: argparse.Namespace) -> dict:
     # the task's bins (intersection: route, turn, ...; others: their category_dims), if any
     bins = task_bins(env_cfg.task.name, category_info(results))
     rows = summarize_by_category(results, bins, errors) if bins else []
+    sources = {}
+    if loaded:
+        for name, key in (("planner", "planner"), ("policy", "extra")):
+            alone = {**results, **results["by_source"][key]}
+            sources[name] = {
+                "success_rate": alone["success"].float().mean().item(),
+                "categories": summarize_by_category(alone, bins, errors) if bins else [],
+            }
     steps = results["rollouts"] * env_cfg.max_steps
     out = {
         "difficulty": args.difficulty,
@@ -185,6 +226,15 @@ def run(args: argparse.Namespace) -> dict:
         "categories": rows,
         "per_episode": _per_episode(results, errors),
     }
+    if loaded:
+        out["policy"] = {
+            "checkpoint": str(loaded.path),
+            "frames": int(loaded.counters["frames"]),
+            **sources["policy"],
+        }
+        out["planner_alone"] = sources["planner"]
+        for e, ok in zip(out["per_episode"], results["solved_by_extra"].tolist(), strict=True):
+            e["solved_by"] = "policy" if ok else ("planner" if e["success"] else None)
     output = Path(args.output) if args.output else default_output()
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(json.dumps(out, default=_jsonable) + "\n")
@@ -242,11 +292,34 @@ def print_report(s: dict, errors, rows: list[dict]) -> None:
         print(f"{f'{q.key} [{q.shown_unit}]':<30}{s[f'{key}_mean']:>10.3f}{s[f'{key}_p95']:>10.3f}")
     if rows:
         print(format_category_table(rows))
+    if "policy" in s:
+        print(format_sources(s))
     print(
         f"{s['seconds']:.1f} s in all ({s['plan_seconds']:.1f} s planning, {s['rollouts']} "
         f"rollouts, up to {s['max_truck_steps_per_s']:.0f} truck-steps/s, {s['threads']} "
         f"thread(s), {s['device']}) -> {s['output']}"
     )
+
+
+def format_sources(s: dict) -> str:
+    """Success per category of the planner alone, the policy alone and either (``--policy``)."""
+    planner, policy = s["planner_alone"], s["policy"]
+    lines = [
+        f"solvable = planner or policy ({policy['checkpoint']}, {policy['frames']:,} frames), "
+        "each replayed open loop:",
+        f"{'category':<34}{'scenes':>7}{'planner':>9}{'policy':>9}{'either':>9}",
+        f"{'all':<34}{s['planned']:>7}{planner['success_rate']:>9.1%}"
+        f"{policy['success_rate']:>9.1%}{s['success_rate']:>9.1%}",
+    ]
+    for both, a, b in zip(
+        s["categories"], planner["categories"], policy["categories"], strict=True
+    ):
+        name = f"{both['dimension']} {both['bin']}"
+        lines.append(
+            f"{name:<34}{both['count']:>7}{a['success_rate']:>9.1%}{b['success_rate']:>9.1%}"
+            f"{both['success_rate']:>9.1%}"
+        )
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -195,3 +195,71 @@ def test_planned_scenes_are_evaluate_policys_at_the_difficulty_for_a_start_curri
             assert torch.equal(res[k], ev[k]), (d, k)
         kinds.append(res["start_kind"])
     assert not torch.equal(kinds[0], kinds[1])  # the difficulty did move starts
+
+
+# ------------------------------------------------------------ a policy beside the planner
+def _steering_actor():
+    """A closed-loop scripted policy: half throttle, steering against the first observation
+    entry, so its actions depend on the state and an open-loop replay is a real check."""
+    return TensorDictModule(
+        lambda obs: torch.stack(
+            [torch.full_like(obs[:, 0], 0.5), (-0.3 * obs[:, 0]).clamp(-1, 1)], -1
+        ),
+        in_keys=["observation"],
+        out_keys=["action"],
+    )
+
+
+def test_policy_actions_replayed_open_loop_reproduce_the_closed_loop_episodes():
+    from truckrl.agent.planner import held_out_states
+    from truckrl.agent.rollout import policy_actions
+
+    env, actor = EnvConfig(max_steps=40), _steering_actor()
+    closed, _, _ = evaluate_policy(actor, env, 2.0, episodes=6, seed=5)
+    states = held_out_states(env, 6, 5, difficulty=2.0)
+    acts = policy_actions(actor, env, states, 2.0)
+    assert acts.shape == (6, 40, 2)
+    for i, n in enumerate(closed["length"].long().tolist()):
+        assert (acts[i, :n, 0] == 0.5).all() and (acts[i, n:] == 0).all()
+    opened = replay(env, states, acts, 2.0)
+    for k in ("success", "collision", "jackknife", "truncated", "length", "pos_error"):
+        assert torch.equal(opened[k], closed[k]), k
+
+
+def test_an_extra_sequence_solves_a_scene_the_planner_misses():
+    solution = plan_states(ENV, straight_scene(), 2.0, FAST)[0]
+    assert bool(solution["success"][0])
+    starved = {**FAST, "samples": 2, "iterations": 1, "attempts": 1}
+    states = torch.cat([straight_scene(), straight_scene(wall=True)])
+    extra = torch.stack([solution["actions"][0], torch.zeros_like(solution["actions"][0])])
+    res, _, _ = plan_states(ENV, states, 2.0, starved, extra=extra)
+    planner, policy = res["by_source"]["planner"], res["by_source"]["extra"]
+    assert not planner["success"].any()  # the precondition: 2 candidates do not find the goal
+    assert policy["success"].tolist() == [True, False]
+    assert res["success"].tolist() == [True, False]
+    assert res["solved_by_extra"].tolist() == [True, False]
+    assert torch.equal(res["actions"][0], solution["actions"][0])
+    assert res["length"][0] == solution["length"][0]
+    with pytest.raises(ValueError, match=r"extra must be \[2, T, 2\]"):
+        plan_states(ENV, states, 2.0, starved, extra=extra[:1])
+
+
+def test_cli_policy_reports_planner_policy_and_either(tmp_path, capsys):
+    import json
+
+    out = tmp_path / "plan.json"
+    args = ["--policy", "pretrained", "--episodes", "3", "--seed", "7", "--samples", "4"]
+    args += ["--iterations", "1", "--planner", "attempts=1", "--no-compile", "--quiet"]
+    args += ["--difficulty", "0"]  # 30 m: the policy reaches some goals within 30 steps
+    assert plan_cli.main([*args, "--env", "max_steps=30", "--output", str(out)]) == 0
+    s = json.loads(out.read_text())
+    assert s["policy"]["checkpoint"].endswith("intersection.pt")
+    for e in s["per_episode"]:
+        assert e["solved_by"] in ("planner", "policy", None)
+        assert (e["solved_by"] is not None) == bool(e["success"])
+    either = s["success_rate"]
+    assert either >= max(s["planner_alone"]["success_rate"], s["policy"]["success_rate"])
+    assert "planner policy either" in " ".join(capsys.readouterr().out.split())
+    assert plan_cli.main(["--policy", str(tmp_path / "none.pt")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and len(err.splitlines()) == 1

@@ -169,8 +169,12 @@ def test_max_std_bounds_the_std_that_the_entropy_bonus_grows(max_std):
     ac = make_actor_critic(ModelConfig(init_std=0.5, max_std=max_std), num_obs=26, num_beams=16)
     cfg = PPOConfig(num_minibatches=4, num_epochs=4, lr=1e-2, lr_schedule="fixed")
     ppo = PPO(ac, PPOConfig(**{**cfg.__dict__, "entropy_coeff": 10.0}))
-    ppo.update(rollout(ac))
+    metrics = ppo.update(rollout(ac))
     std = ac.gaussian.log_std.detach().exp()
+    # the per-axis figures logged to TensorBoard are the two entries of the std itself
+    assert metrics["action_std_longitudinal"] == pytest.approx(std[0].item())
+    assert metrics["action_std_lateral"] == pytest.approx(std[1].item())
+    assert metrics["action_std"] == pytest.approx(std.mean().item())
     if max_std is None:
         assert (std > 0.57).all()  # 16 Adam steps of ~1e-2 up in log-std: ~0.5 * e^0.16
     else:

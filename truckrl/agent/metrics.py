@@ -145,6 +145,9 @@ def iteration_scalars(
         out[f"loss/{k.removeprefix('loss_')}"] = learn[k]
     for k in ("entropy", "kl", "kl_approx", "clip_fraction", "grad_norm", "lr", "action_std"):
         out[f"train/{k}"] = learn[k]
+    for axis in ("longitudinal", "lateral"):  # absent for a one-axis action
+        if f"action_std_{axis}" in learn:
+            out[f"train/action_std_{axis}"] = learn[f"action_std_{axis}"]
     out["curriculum/difficulty"] = curriculum["difficulty"]
     out["curriculum/promotions"] = curriculum["promotions"]
     out["curriculum/tolerance_position_m"] = curriculum["tolerance_position_m"]

@@ -84,7 +84,7 @@ from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
 from truckrl.agent.categories import trailer_length
-from truckrl.agent.rollout import SCENE_INFO_ENTRIES
+from truckrl.agent.rollout import SCENE_INFO_ENTRIES, policy_actions
 from truckrl.env import TruckEnv
 from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES, MODE_TABLE
 from truckrl.sim.validation import ConfigError, build, check_range, param, validate
@@ -727,8 +727,17 @@ def plan_states(
     config: PlannerConfig | dict | None = None,
     device: torch.device | str = "cpu",
     progress: Callable[[int, int], None] | None = None,
+    extra: Tensor | None = None,
 ) -> tuple[dict[str, Any], tuple[float, float], tuple[Quantity, ...]]:
     """Plan every start state of ``states [E]`` and confirm each plan by replay.
+
+    With ``extra`` (``[E, T', 2]`` action sequences from another controller, e.g. a policy's
+    mean actions from :func:`~truckrl.agent.rollout.policy_actions`), each scene's extra sequence
+    is replayed in the same batch as the planner's candidates, and a scene counts as solved when
+    either replay succeeds: the planner's result is reported where it succeeded, else the extra
+    sequence's where that did, else the planner's. ``results["by_source"]`` then holds both
+    replays (``{"planner": ..., "extra": ...}``, each with the outcome flags, "length" and the
+    errors ``[E]``), so each controller can be scored alone on the same scenes.
 
     Returns:
         ``(results, (position tolerance [m], heading tolerance [deg]), errors)`` as
@@ -738,13 +747,16 @@ def plan_states(
         tolerance ratio at the closest approach of the best candidate: <= 1 within the
         tolerances), "iterations" and "attempts" (CEM), "actions" ``[E, T, 2]`` (the reported
         sequence, zeros after its end), "params" (the vehicle parameters, ``{key: [E]}``) and
-        the totals "rollouts", "plan_seconds".
+        the totals "rollouts", "plan_seconds"; with ``extra``, also "by_source" (above) and
+        "solved_by_extra" ``[E]`` (the reported replay is the extra sequence's).
     """
     planner = Planner(env_cfg, config, device)
     cfg = planner.env_cfg
     e, horizon = states.batch_size[0], planner.horizon
+    if extra is not None and (extra.dim() != 3 or extra.shape[0] != e or extra.shape[2] != 2):
+        raise ValueError(f"extra must be [{e}, T, 2] action sequences, got {list(extra.shape)}")
     plan = planner.plan(states, difficulty, progress)
-    # replay every kept candidate in one batch
+    # replay every kept candidate (and each scene's extra sequence) in one batch
     owner, seqs = [], []
     for i, cs in enumerate(plan["candidates"]):
         for _, _, a in cs:
@@ -752,15 +764,31 @@ def plan_states(
             pad = torch.zeros(horizon, 2)
             pad[: a.shape[0]] = a
             seqs.append(pad)
+    n_planned = len(owner)
+    if extra is not None:
+        owner.extend(range(e))
+        pad = torch.zeros(e, horizon, 2)
+        t = min(horizon, extra.shape[1])
+        pad[:, :t] = extra[:, :t].cpu()
+        seqs.extend(pad)
     owner_t = torch.tensor(owner)
     acts = torch.stack(seqs)
     rep = replay(cfg, states[owner_t.to(states.device)], acts, difficulty, device)
     pick = torch.zeros(e, dtype=torch.long)
     for i in range(e):
-        rows = (owner_t == i).nonzero().squeeze(-1)
+        rows = (owner_t[:n_planned] == i).nonzero().squeeze(-1)
         ok = rep["success"][rows]
         pick[i] = rows[ok.nonzero()[0, 0]] if bool(ok.any()) else rows[0]
+    by_source: dict[str, dict[str, Tensor]] = {"planner": {k: v[pick] for k, v in rep.items()}}
+    if extra is not None:
+        extra_rows = torch.arange(n_planned, n_planned + e)
+        by_source["extra"] = {k: v[extra_rows] for k, v in rep.items()}
+        use_extra = by_source["extra"]["success"] & ~by_source["planner"]["success"]
+        pick = torch.where(use_extra, extra_rows, pick)
     results: dict[str, Any] = {k: v[pick] for k, v in rep.items()}
+    if extra is not None:
+        results["by_source"] = by_source
+        results["solved_by_extra"] = use_extra
     length = results["length"].long()
     steps = torch.arange(horizon)
     results["actions"] = acts[pick] * (steps[None, :, None] < length[:, None, None])
@@ -818,6 +846,7 @@ def plan_episodes(
     device: torch.device | str = "cpu",
     indices: Sequence[int] | Tensor | None = None,
     progress: Callable[[int, int], None] | None = None,
+    policy: Callable[[TensorDictBase], TensorDictBase] | None = None,
 ) -> tuple[dict[str, Any], tuple[float, float], tuple[Quantity, ...]]:
     """Plan the ``episodes`` seeded scenes that ``evaluate_policy(…, episodes, seed)`` scores.
 
@@ -830,6 +859,9 @@ def plan_episodes(
         indices: plan only these of the ``episodes`` scenes (``results["scene_index"]`` says
             which); default all.
         progress: called as ``progress(done, total)`` after every CEM iteration.
+        policy: a policy (as ``evaluate_policy`` takes) whose mean actions on the same scenes
+            are replayed beside the planner's candidates (``plan_states``'s ``extra``): a scene
+            is then solved when the planner or the policy solves it.
 
     Returns:
         As :func:`plan_states`, plus ``results["scene_index"] [E]``.
@@ -840,8 +872,12 @@ def plan_episodes(
     index = torch.arange(episodes) if indices is None else torch.as_tensor(indices).long()
     if index.numel() and (index.min() < 0 or index.max() >= episodes):
         raise ConfigError(f"indices must lie in [0, {episodes - 1}]")
+    states = states[index.to(states.device)]
+    extra = None
+    if policy is not None:
+        extra = policy_actions(policy, build(EnvConfig, env_cfg, "env"), states, difficulty, device)
     results, tolerance, errors = plan_states(
-        env_cfg, states[index.to(states.device)], difficulty, config, device, progress
+        env_cfg, states, difficulty, config, device, progress, extra
     )
     results["scene_index"] = index
     return results, tolerance, errors

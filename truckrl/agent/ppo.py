@@ -231,7 +231,9 @@ class PPO:
         Returns:
             Means over all minibatches: "loss_objective", "loss_critic", "loss_entropy",
             "entropy", "kl" (analytic, old || new), "kl_approx" (TorchRL's sample estimate),
-            "clip_fraction", "grad_norm"; plus "lr" (after the update) and "action_std".
+            "clip_fraction", "grad_norm"; plus "lr" (after the update), "action_std" (mean over
+            the action axes) and "action_std_longitudinal" / "action_std_lateral" (each axis:
+            the mean hides one axis growing while the other shrinks).
         """
         dev = batch.device if batch.device is not None else torch.device("cpu")
         with _span(timings, "gae", dev):
@@ -279,7 +281,11 @@ class PPO:
         with _span(timings, "metrics", dev):
             metrics = {k: v.item() / steps for k, v in sums.items()}
             metrics["lr"] = self.lr
-            metrics["action_std"] = self.ac.action_std().mean().item()
+            std = self.ac.action_std().tolist()  # [A]: longitudinal, lateral
+            metrics["action_std"] = sum(std) / len(std)
+            metrics.update(
+                zip(("action_std_longitudinal", "action_std_lateral"), std, strict=False)
+            )
         return metrics
 
     def state_dict(self) -> dict:

@@ -109,3 +109,39 @@ def summarize(results: dict[str, Tensor], errors: tuple[Quantity, ...]) -> dict[
         out[f"{q.key}_{q.shown_unit}_mean"] = v.mean().item()
         out[f"{q.key}_{q.shown_unit}_p95"] = torch.quantile(v, 0.95).item()
     return out
+
+
+@torch.no_grad()
+def policy_actions(
+    actor: Policy,
+    env_cfg: EnvConfig,
+    states: TensorDictBase,
+    difficulty: float,
+    device: str | torch.device = "cpu",
+) -> Tensor:
+    """The actions ``[E, T, 2]`` that ``actor``'s mean action applies from each start state of
+    ``states [E]`` (as from :meth:`TruckEnv.get_state`) in one episode of at most ``T =
+    env_cfg.max_steps`` steps; zeros after the episode's first ``done``.
+
+    The sequence is open loop: replayed from the same start state through the deterministic
+    simulator (``planner.replay``) it drives the same episode, which is how
+    ``python -m truckrl.plan --policy`` checks a policy's solutions with the planner's replay.
+    """
+    env_cfg = dataclasses.replace(env_cfg, compile=False)
+    e = states.batch_size[0]
+    env = TruckEnv(num_envs=e, device=device, config=env_cfg, seed=0)
+    env.set_difficulty(difficulty)
+    td = env.set_state(states)
+    out = torch.zeros(e, env_cfg.max_steps, 2, device=device)
+    ended = torch.zeros(e, dtype=torch.bool, device=device)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        for t in range(env_cfg.max_steps):
+            td = actor(td)
+            out[:, t] = torch.where(ended[:, None], 0.0, td["action"].clamp(-1.0, 1.0))
+            nxt = env.step(td)["next"]
+            ended |= nxt["done"].squeeze(-1)
+            if bool(ended.all()):
+                break
+            td = nxt
+    env.close()
+    return out.cpu()
