@@ -10,6 +10,8 @@ import torch
 
 from tests.agent.test_planner import ENV, FAST, straight_scene
 from tests.conftest import TINY_BATCH, TINY_TRAIN, run_cli
+from truckrl import imitate as imitate_cli
+from truckrl import plan as plan_cli
 from truckrl.agent.imitation import behaviour_clone, demonstrations, set_action_std
 from truckrl.agent.network import ModelConfig, make_actor_critic
 from truckrl.agent.planner import plan_states
@@ -62,14 +64,19 @@ def test_cloning_fits_the_mean_and_leaves_std_and_critic(solved):
 
 
 @pytest.mark.e2e
-def test_imitate_writes_a_checkpoint_that_train_resumes(tmp_path):
+def test_imitate_writes_a_checkpoint_that_train_resumes(tmp_path, capsys):
     plan_json = tmp_path / "plan.json"
     env = ["--env", "max_steps=40"]
-    proc = run_cli(
-        "plan", "--episodes", "3", "--difficulty", "0", "--no-compile", "--samples", "32",
-        "--iterations", "2", "--quiet", *env, "--output", str(plan_json),
-    )  # fmt: skip
-    assert proc.returncode == 0, proc.stderr
+    # plan in process (its CLI has a subprocess test of its own); imitate and train as users do
+    threads = torch.get_num_threads()
+    try:
+        code = plan_cli.main([
+            "--episodes", "3", "--difficulty", "0", "--no-compile", "--samples", "32",
+            "--iterations", "2", "--quiet", *env, "--output", str(plan_json),
+        ])  # fmt: skip
+    finally:
+        torch.set_num_threads(threads)
+    assert code == 0, capsys.readouterr().err
     assert any(e["success"] for e in json.loads(plan_json.read_text())["per_episode"])
     out = tmp_path / "bc"
     tiny = [*TINY_TRAIN, "env.max_steps=40"]
@@ -82,13 +89,22 @@ def test_imitate_writes_a_checkpoint_that_train_resumes(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert load_policy(out).counters["frames"] == TINY_BATCH
     # a plan made with other env settings is refused in one line
-    proc = run_cli("imitate", str(plan_json), *TINY_TRAIN, "--out", str(tmp_path / "x"))
-    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1
-    assert proc.stderr.startswith("error: plan ") and "(env.max_steps)" in proc.stderr
+    capsys.readouterr()
+    err = _exit_2(capsys, str(plan_json), *TINY_TRAIN, "--out", str(tmp_path / "x"))
+    assert len(err.strip().splitlines()) == 1
+    assert err.startswith("error: plan ") and "(env.max_steps)" in err
+    assert not (tmp_path / "x").exists()
 
 
-def test_bad_options_are_one_line():
-    proc = run_cli("imitate", "nowhere.json")
-    assert proc.returncode == 2 and proc.stderr.startswith("error: plan nowhere.json")
-    proc = run_cli("imitate", "nowhere.json", "--std", "0")
-    assert proc.returncode == 2 and proc.stderr.strip() == "error: --std = 0 must be in [0.001, 10]"
+def _exit_2(capsys, *argv: str) -> str:
+    """``python -m truckrl.imitate argv`` in process: it must exit 2; its stderr."""
+    with pytest.raises(SystemExit) as exit_:
+        imitate_cli.main(list(argv))
+    assert exit_.value.code == 2
+    return capsys.readouterr().err
+
+
+def test_bad_options_are_one_line(capsys):
+    assert _exit_2(capsys, "nowhere.json").startswith("error: plan nowhere.json")
+    err = _exit_2(capsys, "nowhere.json", "--std", "0")
+    assert err.strip() == "error: --std = 0 must be in [0.001, 10]"

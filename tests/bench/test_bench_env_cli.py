@@ -1,12 +1,11 @@
 """``python -m truckrl.bench env``: a quick run within its budget, and one-line option errors."""
 
 import json
-import subprocess
 import sys
 
 import pytest
 
-from tests.conftest import ROOT, run_cli
+from tests.conftest import run_cli
 
 pytestmark = pytest.mark.e2e
 
@@ -21,31 +20,48 @@ def test_quick_run_prints_its_time_and_writes_json(tmp_path):
     assert {r["trucks"] for r in record["rows"]} == {1, 256}
 
 
-@pytest.mark.parametrize(
-    "args",
-    [
-        ["--workers", "0"],
-        ["--envs", "0"],
-        ["--steps", "0"],
-        ["--device", "nope"],
-        ["--peer-envs", "0"],
-    ],
-)
-def test_bad_options_are_one_line_exit_2(args, tmp_path):
-    proc = run_cli("bench", "env", *args, "--out", str(tmp_path))
+def test_bad_option_exits_2_with_one_line(tmp_path):
+    proc = run_cli("bench", "env", "--workers", "0", "--out", str(tmp_path))
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
-    assert proc.stderr.strip().startswith("error:") and len(proc.stderr.strip().splitlines()) == 1
+    assert proc.stderr.strip().splitlines() == ["error: --workers 0: must be >= 1"]
 
 
-def test_every_option_has_help():
-    proc = run_cli("bench", "env", "--help")
-    assert proc.returncode == 0
+def _in_process(capsys, *argv: str) -> tuple[int, str, str]:
+    """``python -m truckrl.bench argv`` in this process: (exit code, stdout, stderr)."""
+    from truckrl.bench.__main__ import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(list(argv))
+    out = capsys.readouterr()
+    return exit_.value.code, out.out, out.err
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--envs", "0"], "--envs"),
+        (["--steps", "0"], "--steps"),
+        (["--device", "nope"], "--device"),
+        (["--peer-envs", "0"], "--peer-envs"),
+        (["--parallel-envs", "1", "--workers", "2"], "--parallel-envs"),
+    ],
+)
+def test_bad_options_are_one_line_exit_2(args, needle, tmp_path, capsys):
+    code, _, err = _in_process(capsys, "env", *args, "--out", str(tmp_path))
+    assert code == 2
+    assert err.strip().startswith(f"error: {needle}") and len(err.strip().splitlines()) == 1
+    assert not list(tmp_path.iterdir())  # rejected before any work
+
+
+def test_every_option_has_help(capsys):
+    code, stdout, _ = _in_process(capsys, "env", "--help")
+    assert code == 0
     for opt in (
         "--quick", "--envs", "--workers", "--parallel-envs", "--steps", "--compile",
         "--scaling", "--eager-max-envs", "--plot", "--peers", "--peer-envs",
     ):  # fmt: skip
-        line = next(x for x in proc.stdout.splitlines() if x.strip().startswith(opt))
+        line = next(x for x in stdout.splitlines() if x.strip().startswith(opt))
         assert len(line.strip()) > len(opt) + 8, opt  # followed by a description
 
 
@@ -69,17 +85,11 @@ def test_scaling_quick_writes_table_json_and_a_three_panel_png(tmp_path):
     assert img is not None and img.shape[1] > 2.5 * img.shape[0]  # three panels side by side
 
 
-def test_peers_without_vmas_is_one_line_exit_2(tmp_path):
-    code = (
-        "import sys; sys.modules['vmas'] = None\n"  # as if not installed
-        "from truckrl.bench.__main__ import main\n"
-        f"sys.exit(main(['env', '--peers', '--out', {str(tmp_path)!r}]))"
-    )
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
-    assert proc.returncode == 2
-    assert proc.stderr.strip().splitlines() == [
-        "error: --peers needs VMAS: pip install 'truckrl[bench]'"
-    ]
+def test_peers_without_vmas_is_one_line_exit_2(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "vmas", None)  # as if not installed
+    code, _, err = _in_process(capsys, "env", "--peers", "--out", str(tmp_path))
+    assert code == 2
+    assert err.strip().splitlines() == ["error: --peers needs VMAS: pip install 'truckrl[bench]'"]
     assert not list(tmp_path.glob("*.json"))
 
 
