@@ -12,7 +12,10 @@ from truckrl.task import task_names
 
 def test_defaults_compose_to_the_dataclass_defaults():
     tc = to_config(TrainConfig, compose_config("train", "experiment=paper"))
-    assert tc == TrainConfig()  # the paper experiment overrides nothing
+    expected = TrainConfig()
+    assert expected.env.task.scene.left_turn_exit > 0.0
+    expected.env.task.scene.left_turn_exit = 0.0  # the paper's scenes: no left-turn exit rule
+    assert tc == expected  # the paper experiment overrides nothing else
     assert to_config(PlayConfig, compose_config("play")) == PlayConfig()
     ec = to_config(EvaluateConfig, compose_config("evaluate", "checkpoint=x"))
     assert ec == EvaluateConfig(checkpoint="x")

@@ -33,6 +33,12 @@ stays in its half of the road and fully on it).
   resampled for ``rounds`` rounds, and a crossing scene still without a valid pair becomes a
   straight-road scene (valid by construction).
 * Every start and goal rear axle stays ``curb_reach`` metres (the LiDAR range) inside the curb ends.
+* Left turns leave the trailer room to straighten (``left_turn_exit``, :func:`left_turn_exit`):
+  the goal lies at least ``(tan(turn / 2) + left_turn_exit)`` trailer wheelbases past the corner
+  of the start and goal lanes; a pair that does not is rejected like one that does not fit its
+  arm. Without it (``left_turn_exit = 0``) about 3 % of all scenes were sharp left turns of long
+  trailers that neither the planner nor the trained policy solved at difficulty 6; right turns
+  (the truck can swing wide over the opposing lanes) need no such rule.
 
 Each scene records its **route** (``SceneBatch.route``): :data:`ROUTE_STRAIGHT_ROAD` (a straight
 road scene, fallbacks included), or at a crossing :data:`ROUTE_STRAIGHT_ON` (goal on the opposite
@@ -234,6 +240,15 @@ class SceneConfig:
     rounds: int = param(
         8, lo=1, hi=1000, unit="-", doc="rejection-sampling rounds before the fallback"
     )
+    left_turn_exit: float = param(
+        3.0,
+        lo=0.0,
+        hi=100.0,
+        unit="trailer wheelbases",
+        doc="left turns: the goal lies at least (tan(turn / 2) + this) x trailer wheelbase past "
+        "the corner of the start and goal lanes (0 = no such rule, as before it existed)",
+        source="measured with python -m truckrl.plan (README, Scenes that are solvable)",
+    )
 
     def __post_init__(self) -> None:
         validate(self, "env.task.scene")
@@ -430,7 +445,9 @@ def generate_scenes(
     ext = _Extents(*truck_extents(p))
     crossing = rand(n) < cfg.crossing_prob
     roads = _sample_roads(cfg, rand, n, dev)
-    ok, cross_start, cross_goal, cross_route = _crossing_poses(cfg, rand, roads, ext)
+    ok, cross_start, cross_goal, cross_route = _crossing_poses(
+        cfg, rand, roads, ext, p["trailer_wheelbase"]
+    )
     crossing = crossing & ok
     straight_start, straight_goal = _straight_poses(cfg, rand, roads, ext)
     c = crossing.unsqueeze(-1)
@@ -507,9 +524,10 @@ def _pose(x: Tensor, u: Tensor, road: Tensor) -> Tensor:
 
 
 def _crossing_poses(
-    cfg: SceneConfig, rand, roads: _Roads, ext: _Extents
+    cfg: SceneConfig, rand, roads: _Roads, ext: _Extents, trailer_wheelbase: Tensor
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Start on an approach arm, goal on another arm, by ``cfg.rounds`` rounds of rejection.
+    """Start on an approach arm, goal on another arm, by ``cfg.rounds`` rounds of rejection
+    (left turns also by the exit rule, :func:`left_turn_exit`).
 
     Returns:
         ``ok [n]`` (a valid pair was found), start and goal ``[n, 4]`` (see :func:`_pose`), and
@@ -566,18 +584,54 @@ def _crossing_poses(
         disc = b * b - ((xs - q) ** 2).sum(-1) + dist * dist
         a_g = b + disc.clamp_min(0.0).sqrt()
         valid = (disc >= 0.0) & (a_g >= ag_lo) & (a_g <= ag_hi) & (as_lo <= as_hi) & (d_lo <= d_hi)
-        take = (valid & ~ok).unsqueeze(-1)
-        start = torch.where(take, _pose(xs, us, rs), start)
-        goal = torch.where(take, _pose(q + a_g.unsqueeze(-1) * ug, ug, rg), goal)
+        xg = q + a_g.unsqueeze(-1) * ug
         # the picked exit: a turn goes left where the goal direction is counter-clockwise of the
         # start direction (|cross| = sin(crossing angle) > 0 on the other road)
         left = us[:, 0] * ug[:, 1] - us[:, 1] * ug[:, 0] > 0.0
+        if cfg.left_turn_exit > 0.0:
+            room = left_turn_exit(xs, us, xg, ug, trailer_wheelbase)
+            valid = valid & ~((choice != 0) & left & (room < cfg.left_turn_exit))
+        take = (valid & ~ok).unsqueeze(-1)
+        start = torch.where(take, _pose(xs, us, rs), start)
+        goal = torch.where(take, _pose(xg, ug, rg), goal)
         picked = torch.where(
             choice == 0, ROUTE_STRAIGHT_ON, torch.where(left, ROUTE_LEFT, ROUTE_RIGHT)
         )
         route = torch.where(take[:, 0], picked, route)
         ok = ok | valid
     return ok, start, goal, route
+
+
+def left_turn_exit(
+    start: Tensor, u_start: Tensor, goal: Tensor, u_goal: Tensor, trailer_wheelbase: Tensor
+) -> Tensor:
+    """How much straight lane a turn leaves the trailer after its arc, in trailer wheelbases.
+
+    With ``corner`` the point where the start lane (the line through ``start`` along
+    ``u_start``) meets the goal lane (through ``goal`` along ``u_goal``), and ``turn`` the
+    heading change between them, this is ``|goal - corner| / trailer_wheelbase - tan(turn / 2)``:
+    an arc of kingpin radius ``R`` tangent to both lanes leaves the goal lane ``R tan(turn / 2)``
+    past the corner, and a truck whose articulation limit keeps ``R`` above about one trailer
+    wheelbase then needs the rest of the lane to bring the trailer straight (its heading error
+    decays like ``exp(-s / trailer_wheelbase)`` along a straight lane).
+
+    Args:
+        start, goal: ``[n, 2]`` rear-axle positions [m].
+        u_start, u_goal: ``[n, 2]`` unit headings (not parallel).
+        trailer_wheelbase: ``[n]`` [m].
+
+    Returns:
+        ``[n]`` [trailer wheelbases]; ``SceneConfig.left_turn_exit`` is its lower bound for
+        left turns.
+    """
+    cross = u_start[:, 0] * u_goal[:, 1] - u_start[:, 1] * u_goal[:, 0]  # sin(turn)
+    cos_turn = (u_start * u_goal).sum(-1)
+    d = goal - start
+    # corner = goal - before * u_goal; solve start + ahead * u_start = corner for before
+    safe = torch.where(cross.abs() < 1e-9, torch.ones_like(cross), cross)
+    before = (u_start[:, 0] * d[:, 1] - u_start[:, 1] * d[:, 0]) / safe
+    tan_half = cross.abs() / (1.0 + cos_turn).clamp_min(1e-9)  # tan(|turn| / 2)
+    return before / trailer_wheelbase - tan_half
 
 
 def _straight_poses(cfg: SceneConfig, rand, roads: _Roads, ext: _Extents) -> tuple[Tensor, Tensor]:
