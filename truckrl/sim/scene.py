@@ -38,7 +38,7 @@ stays in its half of the road and fully on it).
   of the start and goal lanes; a pair that does not is rejected like one that does not fit its
   arm. Without it (``left_turn_exit = 0``) about 3 % of all scenes were sharp left turns of long
   trailers that neither the planner nor the trained policy solved at difficulty 6; right turns
-  (the truck can swing wide over the opposing lanes) need no such rule.
+  needed no such rule (every one was solved).
 
 Each scene records its **route** (``SceneBatch.route``): :data:`ROUTE_STRAIGHT_ROAD` (a straight
 road scene, fallbacks included), or at a crossing :data:`ROUTE_STRAIGHT_ON` (goal on the opposite
