@@ -124,9 +124,11 @@ def test_best_checkpoint_keeps_the_best_heldout_result_across_a_resume(tmp_path)
 
 def test_demonstrations_start_the_run_and_a_resume_does_not_plan_again(tmp_path):
     """``demos.episodes=N``: the run plans N scenes, clones the solutions (demos.json says how
-    it went), then trains; resuming it never plans again."""
+    it went), then trains; resuming it never plans again. With ``demos.bc_coeff`` the samples
+    are kept in demos.pt, the cloning term is logged, and a resume without them is one line."""
     demos = ["demos.episodes=3", "demos.difficulty=0", "demos.samples=32", "demos.iterations=2",
-             "demos.compile=false", "demos.epochs=3", "demos.seed=12345", "env.max_steps=40"]  # fmt: skip
+             "demos.compile=false", "demos.epochs=3", "demos.seed=12345", "env.max_steps=40",
+             "demos.bc_coeff=1", f"demos.bc_frames={4 * BATCH}"]  # fmt: skip
     proc = train(f"total_frames={BATCH}", *demos, f"hydra.run.dir={tmp_path}")
     assert "demonstrations: planning 3 scenes (seed 12345) at difficulty 0" in proc.stdout
     info = json.loads((tmp_path / "demos.json").read_text())
@@ -135,8 +137,24 @@ def test_demonstrations_start_the_run_and_a_resume_does_not_plan_again(tmp_path)
     std = load_checkpoint(tmp_path)["model"]
     log_std = next(v for k, v in std.items() if k.endswith("log_std"))
     assert torch.allclose(log_std.exp(), torch.tensor(0.3), atol=0.05)  # set, then one update
+    saved = torch.load(tmp_path / "demos.pt", weights_only=True)
+    assert len(saved["action"]) == info["samples"] and saved["lidar"].shape[1] == 16
+    assert scalar_steps(tmp_path, "train/bc_coeff") == [BATCH]
     proc = train(f"resume={tmp_path}", f"total_frames={2 * BATCH}", *demos)
     assert "demonstrations:" not in proc.stdout
+    acc = EventAccumulator(str(tmp_path / "tb"))
+    acc.Reload()
+    weights = [e.value for e in acc.Scalars("train/bc_coeff")]
+    assert weights == pytest.approx([1.0, 0.75])  # falls linearly over 4 batches
+    assert all(e.value > 0 for e in acc.Scalars("loss/bc"))
+    (tmp_path / "demos.pt").unlink()
+    proc = train(f"resume={tmp_path}", f"total_frames={3 * BATCH}", check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1] == (
+        f"error: demos.bc_coeff = 1 needs demonstrations: a resumed run reads "
+        f"{tmp_path}/demos.pt, which does not exist (put it back, or start a new run from "
+        f"these weights: init={tmp_path} demos.bc_coeff=0)"
+    )
 
 
 def test_demonstrations_that_solve_nothing_are_one_line(tmp_path):

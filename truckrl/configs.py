@@ -102,7 +102,11 @@ RESUME_OVERRIDES = (
 @dataclass
 class DemosConfig:
     """A start cloned from planner demonstrations, made by the run itself before PPO
-    (``truckrl/agent/imitation.py``; README, "Learning quality"). Skipped on resume."""
+    (``truckrl/agent/imitation.py``; README, "Learning quality"). Skipped on resume.
+
+    With ``bc_coeff > 0`` the demonstrations also stay in the PPO update as a cloning term whose
+    weight decays to 0 over ``bc_frames`` (kept in ``<run dir>/demos.pt`` for a resume).
+    """
 
     episodes: int = param(
         0, lo=0, hi=1_000_000, unit="scenes", doc="scenes the planner solves first (0: no demos)"
@@ -126,6 +130,23 @@ class DemosConfig:
         None, lo=1, hi=100_000, doc="planner CEM iterations per attempt (null: its own)"
     )
     compile: bool = param(True, doc="torch.compile the planner's rollouts (~15 s once)")
+    bc_coeff: float = param(
+        0.0,
+        lo=0.0,
+        hi=1e3,
+        doc="weight of the cloning term (action MSE on the demonstrations) added to every PPO "
+        "minibatch loss at frame 0 (0: cloning only before PPO)",
+    )
+    bc_frames: int = param(
+        20_000_000,
+        lo=1,
+        hi=1e15,
+        unit="frames",
+        doc="the cloning weight falls linearly from bc_coeff to 0 over this many frames",
+    )
+    bc_batch: int = param(
+        1024, lo=1, hi=10_000_000, unit="samples", doc="demonstration samples per PPO minibatch"
+    )
 
 
 @dataclass

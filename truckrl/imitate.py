@@ -77,7 +77,14 @@ def run(args: argparse.Namespace) -> Path:
 
     from truckrl.agent.checkpoint import save_training_state
     from truckrl.agent.curriculum import Curriculum
-    from truckrl.agent.imitation import behaviour_clone, demonstrations, plan_demos, set_action_std
+    from truckrl.agent.imitation import (
+        SAMPLES_NAME,
+        behaviour_clone,
+        demonstrations,
+        plan_demos,
+        save_samples,
+        set_action_std,
+    )
     from truckrl.agent.network import make_actor_critic
     from truckrl.agent.planner import held_out_states
     from truckrl.agent.ppo import PPO
@@ -123,6 +130,7 @@ def run(args: argparse.Namespace) -> Path:
         num_beams=samples["lidar"].shape[1],
         source=git_revision(),
     )
+    save_samples(out / SAMPLES_NAME, samples)  # for train resume=<out> with demos.bc_coeff > 0
     (out / "imitation.json").write_text(
         json.dumps(
             {"plan": str(args.plan), "plans_kept": kept, "samples": samples.numel(),

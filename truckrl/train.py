@@ -91,7 +91,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     # Create models, PPO (GAE, ClipPPOLoss, Adam, KL schedule) and curriculum
     ac = make_actor_critic(tc.model, num_obs, num_beams, env.action_spec.shape[-1])
     ac.model.to(tc.device)
-    demos = None
+    demos = samples = None
     if not state and init is not None:  # fine-tuning: another run's weights, nothing else
         try:
             ckpt.load_init_weights(init, ac.model, num_obs, num_beams)
@@ -102,8 +102,11 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
         log.info(f"init: weights of {init['path']} (iteration {init['counters']['iteration']}, "
                  f"difficulty {init['curriculum']['difficulty']:g}){skipped}")  # fmt: skip
     elif not state and tc.demos.episodes > 0:  # a start cloned from planner demonstrations
-        demos = clone_demonstrations(ac, tc, env)
+        demos, samples = clone_demonstrations(ac, tc, env)
     ppo = PPO(ac, tc.ppo)
+    if bc_weight(tc.demos, counters.frames) > 0:  # the demonstrations stay in the update
+        ppo.demos = cloning_samples(tc, run_dir, state, parent, samples, env).to(tc.device)
+        ppo.bc_batch = tc.demos.bc_batch
     curriculum = Curriculum(tc.curriculum)
     if state:
         per_iteration = tc.ppo.num_epochs * tc.ppo.num_minibatches  # optimizer steps
@@ -197,7 +200,10 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
                          f"{tolerance[1]:.3g} deg) at {minutes:.1f} min, {counters.frames:,} frames")  # fmt: skip
 
             # PPO update
+            ppo.bc_coeff = bc_weight(tc.demos, counters.frames)
             learn = ppo.update(batch)
+            if "loss_bc" in learn:
+                learn["bc_coeff"] = ppo.bc_coeff
             collector.update_policy_weights_()
             t2 = time.perf_counter()
 
@@ -257,9 +263,50 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     return counters
 
 
-def clone_demonstrations(ac: Any, tc: Any, env: Any) -> dict:
+def bc_weight(dc: Any, frames: int) -> float:
+    """The cloning term's weight after ``frames`` frames: ``dc.bc_coeff`` falling linearly to 0
+    at ``dc.bc_frames`` (:class:`~truckrl.configs.DemosConfig`)."""
+    return dc.bc_coeff * max(0.0, 1.0 - frames / dc.bc_frames)
+
+
+def cloning_samples(
+    tc: Any, run_dir: Path, state: dict | None, parent: dict | None, fresh: Any, env: Any
+) -> Any:
+    """The demonstration samples PPO keeps cloning (``demos.bc_coeff > 0``).
+
+    A new run stores the samples it just cloned (``fresh``) as ``<run_dir>/demos.pt``; a resumed
+    run reads that file back, from its own run dir or, for a branch, its parent's (``imitate``
+    writes one beside its checkpoint too). No samples is a one-line :class:`ConfigError`, before
+    any training.
+    """
+    from truckrl.agent.imitation import SAMPLES_NAME, load_samples, save_samples
+    from truckrl.sim.validation import ConfigError
+
+    if fresh is not None:
+        save_samples(run_dir / SAMPLES_NAME, fresh)
+        return fresh
+    places = [run_dir] + ([Path(parent["run_dir"])] if parent else [])
+    for where in places:
+        if (where / SAMPLES_NAME).exists():
+            try:
+                return load_samples(where / SAMPLES_NAME)
+            except ValueError as e:
+                env.close()
+                raise ConfigError(f"demos.bc_coeff: {e}") from None
+    env.close()  # the workers, before the one-line error
+    files = " or ".join(str(p / SAMPLES_NAME) for p in places)
+    if state:  # the saved config decides: demos.* cannot change on resume
+        how = f"a resumed run reads {files}, which does not exist (put it back, or start a new "
+        how += f"run from these weights: init={run_dir} demos.bc_coeff=0)"
+    else:
+        how = f"a new run needs demos.episodes > 0 or {files} (or demos.bc_coeff=0)"
+    raise ConfigError(f"demos.bc_coeff = {tc.demos.bc_coeff:g} needs demonstrations: {how}")
+
+
+def clone_demonstrations(ac: Any, tc: Any, env: Any) -> tuple[dict, Any]:
     """``demos.episodes`` planner solutions cloned into ``ac`` (:func:`imitation.bootstrap`);
-    returns its summary. A planner that solves nothing is a one-line :class:`ConfigError`."""
+    returns its summary and the samples. A planner that solves nothing is a one-line
+    :class:`ConfigError`."""
     from truckrl.agent.imitation import bootstrap
     from truckrl.sim.validation import ConfigError
 
@@ -274,14 +321,14 @@ def clone_demonstrations(ac: Any, tc: Any, env: Any) -> dict:
             log.info(f"  planner: {done}/{total} scenes")
 
     try:
-        demos = bootstrap(ac, tc.env, dc, tc.device, tc.seed, progress)
+        demos, samples = bootstrap(ac, tc.env, dc, tc.device, tc.seed, progress)
     except ValueError as e:
         env.close()  # the workers, before the one-line error
         raise ConfigError(f"demos: {e}") from None
     log.info(f"demonstrations: {demos['plans_kept']} of {dc.episodes} scenes solved, "
              f"{demos['samples']:,} samples, action MSE {demos['losses'][0]:.4f} -> "
              f"{demos['losses'][-1]:.4f}, {demos['seconds'] / 60:.1f} min")  # fmt: skip
-    return demos
+    return demos, samples
 
 
 def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:

@@ -195,3 +195,62 @@ def test_max_std_clamps_a_loaded_std_and_rejects_a_larger_init():
         ModelConfig(init_std=2.0, max_std=1.0)
     with pytest.raises(ConfigError, match="model.max_std"):
         ModelConfig(max_std=0.0)
+
+
+def _demos(n=256, seed=2):
+    """Demonstration samples whose every action is (0.5, -0.5)."""
+    g = torch.Generator().manual_seed(seed)
+    obs, lidar = torch.randn(n, 26, generator=g), torch.rand(n, 16, generator=g)
+    action = torch.tensor([0.5, -0.5]).expand(n, 2).clone()
+    return TensorDict({"observation": obs, "lidar": lidar, "action": action}, [n])
+
+
+def _demo_mse(ac, demos):
+    with torch.no_grad():
+        loc = ac.actor(demos.select("observation", "lidar"))["loc"]
+    return (loc - demos["action"]).square().mean().item()
+
+
+@pytest.mark.parametrize("coeff", [0.0, 50.0])
+def test_cloning_term_pulls_the_mean_to_the_demonstrated_actions(coeff):
+    """``demos.bc_coeff``: with a weight the update fits the actor's mean to the demonstrated
+    actions (MSE measured independently, before and after) and reports the term; with 0 it
+    neither reports it nor changes the result of the same update (same seed, bit for bit)."""
+    demos = _demos()
+    results = []
+    for attach in (False, True):
+        torch.manual_seed(0)
+        ac = make_actor_critic(ModelConfig(), num_obs=26, num_beams=16)
+        ppo = PPO(ac, PPOConfig(num_minibatches=4, num_epochs=4, lr=1e-3, lr_schedule="fixed"))
+        if attach:
+            ppo.demos, ppo.bc_coeff, ppo.bc_batch = demos, coeff, 64
+        before = _demo_mse(ac, demos)
+        batch = rollout(ac)
+        torch.manual_seed(1)
+        metrics = ppo.update(batch)
+        results.append((before, _demo_mse(ac, demos), metrics))
+    (b0, a0, m0), (b1, a1, m1) = results
+    assert b0 == b1 and "loss_bc" not in m0
+    if coeff == 0:
+        assert a1 == a0 and "loss_bc" not in m1
+    else:
+        assert a1 < 0.5 * b1 and a1 < 0.5 * a0  # 16 steps of the cloning term
+        assert 0 < m1["loss_bc"] < b1  # mean over the minibatches, each before its step
+
+
+def test_cloning_weight_falls_linearly_to_zero():
+    from tests.conftest import compose_config
+    from truckrl.cli import to_config
+    from truckrl.configs import DemosConfig, TrainConfig
+    from truckrl.train import bc_weight
+
+    dc = DemosConfig(bc_coeff=2.0, bc_frames=1_000)
+    weights = [bc_weight(dc, f) for f in (0, 250, 500, 1_000, 5_000)]
+    assert weights == pytest.approx([2.0, 1.5, 1.0, 0.0, 0.0])
+    assert bc_weight(DemosConfig(), 0) == 0.0  # off by default
+    for bad, field in (
+        ("demos.bc_coeff=-1", "demos.bc_coeff"),
+        ("demos.bc_frames=0", "demos.bc_frames"),
+    ):
+        with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+            to_config(TrainConfig, compose_config("train", bad))

@@ -25,12 +25,14 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import torch
 from tensordict import TensorDict
 from torch import Tensor
 
+from truckrl.agent.checkpoint import save_checkpoint
 from truckrl.agent.network import LIDAR_KEY, OBS_KEY, ActorCritic
 from truckrl.env import TruckEnv
 from truckrl.task import EnvConfig
@@ -96,6 +98,42 @@ def demonstrations(
     return samples, int(succeeded.sum())
 
 
+def action_mse(ac: ActorCritic, batch: TensorDict) -> Tensor:
+    """Mean squared error ``[]`` between the actor's mean ("loc") and ``batch["action"]``.
+
+    ``batch`` is ``[B]`` with "observation", "lidar" and "action" (a :func:`demonstrations`
+    slice); differentiable in the trunk and the mean head.
+    """
+    loc = ac.actor(batch.select(OBS_KEY, LIDAR_KEY))["loc"]
+    return (loc - batch["action"]).square().mean()
+
+
+#: Where a run keeps its demonstration samples when PPO goes on cloning (``demos.bc_coeff``).
+SAMPLES_NAME = "demos.pt"
+_SAMPLE_KEYS = (OBS_KEY, LIDAR_KEY, "action")
+
+
+def save_samples(path: str | Path, samples: TensorDict) -> Path:
+    """Write demonstration samples atomically (tensors only: loads with ``weights_only=True``)."""
+    return save_checkpoint(path, {k: samples[k].detach().cpu() for k in _SAMPLE_KEYS})
+
+
+def load_samples(path: str | Path) -> TensorDict:
+    """Read :func:`save_samples`' file back as ``[M]`` samples.
+
+    Raises:
+        ValueError: missing, unreadable or not a samples file (one line naming the file).
+    """
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+        return TensorDict({k: data[k] for k in _SAMPLE_KEYS}, batch_size=[len(data["action"])])
+    except FileNotFoundError:
+        raise ValueError(f"{path} does not exist") from None
+    except Exception as e:  # noqa: BLE001 - any unreadable file is the same one-line error
+        first = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        raise ValueError(f"{path} is not a demonstrations file ({first})") from None
+
+
 def behaviour_clone(
     ac: ActorCritic,
     samples: TensorDict,
@@ -121,8 +159,7 @@ def behaviour_clone(
         total = 0.0
         for start in range(0, n, batch_size):
             b = samples[order[start : start + batch_size]]
-            loc = ac.actor(b.select(OBS_KEY, LIDAR_KEY))["loc"]
-            loss = (loc - b["action"]).square().mean()
+            loss = action_mse(ac, b)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -151,7 +188,7 @@ def bootstrap(
     device: torch.device | str = "cpu",
     seed: int = 0,
     progress: Any = None,
-) -> dict[str, Any]:
+) -> tuple[dict[str, Any], TensorDict]:
     """Plan ``dc.episodes`` scenes of seed ``dc.seed``, clone the successful plans into ``ac``'s
     actor and set its std: a training run's start (``train demos.episodes=N``).
 
@@ -163,7 +200,8 @@ def bootstrap(
         progress: ``progress(done, total)`` after every planner iteration, or None.
 
     Returns:
-        A JSON-ready summary: scenes, planner success rate, plans kept, samples, losses, seconds.
+        ``(summary, samples)``: a JSON-ready summary (scenes, planner success rate, plans kept,
+        samples, losses, seconds) and the ``[M]`` demonstration samples it cloned.
 
     Raises:
         ValueError: no plan succeeded (nothing to clone).
@@ -193,7 +231,7 @@ def bootstrap(
     )
     losses = behaviour_clone(ac, samples.to(device), dc.epochs, dc.lr, dc.batch_size, seed=seed)
     set_action_std(ac, dc.std)
-    return {
+    summary = {
         "scenes": dc.episodes,
         "seed": dc.seed,
         "difficulty": dc.difficulty,
@@ -205,3 +243,4 @@ def bootstrap(
         "plan_seconds": t_plan,
         "seconds": time.perf_counter() - t0,
     }
+    return summary, samples

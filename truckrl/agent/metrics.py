@@ -145,6 +145,9 @@ def iteration_scalars(
         out[f"loss/{k.removeprefix('loss_')}"] = learn[k]
     for k in ("entropy", "kl", "kl_approx", "clip_fraction", "grad_norm", "lr", "action_std"):
         out[f"train/{k}"] = learn[k]
+    if "loss_bc" in learn:  # the cloning term is on (demos.bc_coeff)
+        out["loss/bc"] = learn["loss_bc"]
+        out["train/bc_coeff"] = learn["bc_coeff"]
     for axis in ("longitudinal", "lateral"):  # absent for a one-axis action
         if f"action_std_{axis}" in learn:
             out[f"train/action_std_{axis}"] = learn[f"action_std_{axis}"]

@@ -20,6 +20,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from truckrl.agent.config import PPOConfig
+from truckrl.agent.imitation import action_mse
 from truckrl.agent.network import HIDDEN_KEY, LIDAR_KEY, OBS_KEY, ActorCritic
 
 
@@ -137,6 +138,14 @@ class PPO:
         cfg: hyper-parameters.
     """
 
+    #: Demonstration samples ``[M]`` ("observation", "lidar", "action") for the cloning term, or
+    #: None; with ``bc_coeff > 0`` every minibatch adds ``bc_coeff`` x the actor's action MSE on
+    #: ``bc_batch`` of them drawn at random (``demos.bc_coeff``; the trainer sets the weight each
+    #: iteration).
+    demos: TensorDictBase | None = None
+    bc_coeff: float = 0.0
+    bc_batch: int = 1024
+
     def __init__(self, ac: ActorCritic, cfg: PPOConfig) -> None:
         self.ac = ac
         self.cfg = cfg
@@ -231,7 +240,8 @@ class PPO:
         Returns:
             Means over all minibatches: "loss_objective", "loss_critic", "loss_entropy",
             "entropy", "kl" (analytic, old || new), "kl_approx" (TorchRL's sample estimate),
-            "clip_fraction", "grad_norm"; plus "lr" (after the update), "action_std" (mean over
+            "clip_fraction", "grad_norm", and "loss_bc" (the cloning term's action MSE, before
+            its weight) when it is on; plus "lr" (after the update), "action_std" (mean over
             the action axes) and "action_std_longitudinal" / "action_std_lateral" (each axis:
             the mean hides one axis growing while the other shrinks).
         """
@@ -245,6 +255,9 @@ class PPO:
         keys = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx")
         keys += ("clip_fraction",)
         sums = {k: torch.zeros((), device=batch.device) for k in (*keys, "kl", "grad_norm")}
+        demos = self.demos if self.bc_coeff > 0 and self.demos is not None else None
+        if demos is not None:
+            sums["loss_bc"] = torch.zeros((), device=batch.device)
         params = list(self.ac.model.parameters())
         steps = 0
         for _ in range(self.cfg.num_epochs):
@@ -258,6 +271,11 @@ class PPO:
                     mb = shuffled[start : start + mb_size]
                     out = self.loss(mb)
                     total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+                    if demos is not None:  # keep the demonstrated actions (demos.bc_coeff)
+                        pick = torch.randint(demos.numel(), (self.bc_batch,), device=demos.device)
+                        bc = action_mse(self.ac, demos[pick])
+                        total = total + self.bc_coeff * bc
+                        sums["loss_bc"] += bc.detach()
                     # KL of this minibatch before the step, from the loss's own forward (RSL-RL
                     # order: the new learning rate applies to this very step)
                     loc, scale = self.loss.last_loc, self.loss.last_scale
