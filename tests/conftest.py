@@ -33,7 +33,8 @@ TINY_TRAIN = [
     "log.video_interval=0",
     "log.progress_bar=false",
     "env.compile=false",
-    "demos.episodes=0",  # experiment=demos would plan 600 scenes first
+    "demos.episodes=0",  # the default experiment=demos would plan 600 scenes first
+    "demos.bc_coeff=0",  # ... and keep cloning them
 ]
 TINY_BATCH = 16 * 16  # frames per iteration with TINY_TRAIN
 

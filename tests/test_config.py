@@ -1,5 +1,7 @@
 """Hydra composition of the structured configs: presets, groups, overrides and the field table."""
 
+from dataclasses import replace
+
 import pytest
 
 from tests.conftest import compose_config, run_cli
@@ -37,16 +39,19 @@ def test_gpu_experiment_asks_for_cuda_and_refuses_a_machine_without_it():
 def test_demos_experiment_is_fast_plus_its_values():
     fast = to_config(TrainConfig, compose_config("train", "experiment=fast"))
     demos = to_config(TrainConfig, compose_config("train", "experiment=demos"))
-    assert to_config(TrainConfig, compose_config("train")) == fast  # the default
+    assert to_config(TrainConfig, compose_config("train")) == demos  # the default
     assert (demos.ppo.gamma, demos.env.task.reward.time, demos.curriculum.max_difficulty) == (
         0.998,
         -0.005,
         6.0,
     )
     assert (demos.demos.episodes, fast.demos.episodes) == (600, 0)
+    assert (demos.demos.bc_coeff, fast.demos.bc_coeff) == (1.0, 0.0)
+    assert (demos.model.max_std, fast.model.max_std) == (1.0, None)
     assert (demos.stop_difficulty, fast.stop_difficulty) == (None, 6.0)
-    for part in ("collector", "model", "log", "checkpoint"):
+    for part in ("collector", "log", "checkpoint"):
         assert getattr(demos, part) == getattr(fast, part), part
+    assert replace(demos.model, max_std=None) == fast.model
     assert demos.ppo.lr == fast.ppo.lr and demos.env.compile == fast.env.compile
 
 
@@ -102,12 +107,13 @@ def test_config_table_cli():
 
 
 def test_default_run_ends_on_its_own():
-    """`python -m truckrl.train` stops at the paper's goal (difficulty 6) or after 60 minutes;
-    experiment=demos caps the curriculum at 6 and trains the 60 minutes."""
+    """`python -m truckrl.train` (experiment=demos) caps the curriculum at 6 and stops after 60
+    minutes; experiment=fast stops at the paper's goal (difficulty 6) or after 60 minutes."""
     tc = to_config(TrainConfig, compose_config("train"))
-    assert (tc.stop_difficulty, tc.max_minutes, tc.total_frames) == (6.0, 60.0, None)
-    demos = to_config(TrainConfig, compose_config("train", "experiment=demos"))
-    assert (demos.stop_difficulty, demos.curriculum.max_difficulty) == (None, 6.0)
+    assert (tc.stop_difficulty, tc.max_minutes, tc.total_frames) == (None, 60.0, None)
+    assert tc.curriculum.max_difficulty == 6.0
+    fast = to_config(TrainConfig, compose_config("train", "experiment=fast"))
+    assert (fast.stop_difficulty, fast.max_minutes) == (6.0, 60.0)
     assert not tc.overwrite and tc.resume is None
 
 

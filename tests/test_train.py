@@ -179,7 +179,8 @@ def test_init_starts_a_new_run_from_another_runs_weights(run_dir, tmp_path):
     given checkpoint's; with a learning rate of ~0 it ends one iteration where it started."""
     frozen = ["ppo.lr=1e-12", "ppo.lr_min=1e-12", "ppo.lr_schedule=fixed", f"total_frames={BATCH}"]
     it = load_checkpoint(run_dir)["counters"]["iteration"]  # shared: other tests resume run_dir
-    proc = train(f"init={run_dir}", *frozen, "demos.episodes=3", f"hydra.run.dir={tmp_path}")
+    demos = ("demos.episodes=3", "demos.bc_coeff=1")  # a fine-tune skips both
+    proc = train(f"init={run_dir}", *frozen, *demos, f"hydra.run.dir={tmp_path}")
     assert f"init: weights of {run_dir}/checkpoints/last.pt (iteration {it}," in proc.stdout
     assert "demos skipped" in proc.stdout and "demonstrations:" not in proc.stdout
     new, old = load_checkpoint(tmp_path)["model"], load_checkpoint(run_dir)["model"]
@@ -304,10 +305,13 @@ def test_paper_preset_has_the_paper_numbers():
     assert not tc.env.compile
 
 
-def test_fast_experiment_is_the_default():
+def test_demos_experiment_is_the_default():
+    """``make train``: planner demonstrations, cloning, then PPO that keeps cloning them, on the
+    fast rollout shape, for the full 60 minutes."""
     tc = to_config(TrainConfig, compose_config("train"))
     assert tc.collector.frames_per_batch == 1024 * 64 and tc.env.compile
     assert (tc.ppo.num_epochs, tc.ppo.num_minibatches, tc.ppo.lr) == (5, 16, 3e-4)
+    assert (tc.demos.episodes, tc.demos.bc_coeff, tc.stop_difficulty) == (600, 1.0, None)
 
 
 def test_difficulty_reaches_every_parallel_worker():

@@ -153,9 +153,10 @@ class DemosConfig:
 class TrainConfig:
     """``python -m truckrl.train``: everything a training run reads.
 
-    By default a run ends on its own: at the paper's goal (``stop_difficulty`` 6: 0.47 m and
-    0.94 deg) or after ``max_minutes`` 60, whichever comes first (``experiment=demos`` caps the
-    curriculum at 6 instead and trains for the 60 minutes).
+    A run ends on its own: at the paper's goal (``stop_difficulty`` 6: 0.47 m and 0.94 deg) or
+    after ``max_minutes`` 60, whichever comes first. These are the dataclass defaults; the
+    default preset ``experiment=demos`` caps the curriculum at 6 instead and trains for the 60
+    minutes.
     """
 
     seed: int = param(0, lo=0, hi=SEED_MAX, doc="torch/numpy/python seed; env seeds derive from it")

@@ -1,6 +1,6 @@
 """``python -m truckrl.train``: PPO on TruckEnv with the success curriculum (the paper's setup).
 
-    python -m truckrl.train                                # experiment=fast (CPU), paper curriculum
+    python -m truckrl.train                                # experiment=demos (CPU), paper curriculum
     python -m truckrl.train resume=outputs/2025-01-01/12-00-00        # continue a stopped run
     python -m truckrl.train --help                                    # options and examples
 
@@ -9,7 +9,8 @@ episodes to the curriculum in start order (:mod:`truckrl.agent.cohorts`; a promo
 every worker before the next collection), runs the PPO update and logs to ``<run_dir>/tb``.
 ``<run_dir>/checkpoints/last.pt`` is written every ``checkpoint.interval`` iterations and at the
 end; ``best.pt`` after each held-out evaluation that beats every earlier one (higher difficulty,
-or the same difficulty and a higher success rate; ``checkpoint.keep_best``). A run stops at ``stop_difficulty`` (default 6, the paper's goal), ``max_minutes`` (60),
+or the same difficulty and a higher success rate; ``checkpoint.keep_best``). A run stops at ``stop_difficulty`` (6, the paper's goal, in ``experiment=fast``; none in the
+default ``experiment=demos``, which trains on at 6), ``max_minutes`` (60),
 ``total_frames`` or a signal (at the next iteration boundary, with a checkpoint, exit 0;
 :mod:`truckrl.agent.session`); its last lines say why and what to run next.
 
@@ -98,13 +99,14 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
         except ckpt.CheckpointError:
             env.close()  # the workers, before the one-line error
             raise
-        skipped = "; demos skipped" if tc.demos.episodes > 0 else ""
+        skipped = "; demos skipped" if tc.demos.episodes > 0 or tc.demos.bc_coeff > 0 else ""
         log.info(f"init: weights of {init['path']} (iteration {init['counters']['iteration']}, "
                  f"difficulty {init['curriculum']['difficulty']:g}){skipped}")  # fmt: skip
     elif not state and tc.demos.episodes > 0:  # a start cloned from planner demonstrations
         demos, samples = clone_demonstrations(ac, tc, env)
     ppo = PPO(ac, tc.ppo)
-    if bc_weight(tc.demos, counters.frames) > 0:  # the demonstrations stay in the update
+    # the demonstrations stay in the update (not in a fine-tune: init= skips the demos)
+    if bc_weight(tc.demos, counters.frames) > 0 and (state or init is None):
         ppo.demos = cloning_samples(tc, run_dir, state, parent, samples, env).to(tc.device)
         ppo.bc_batch = tc.demos.bc_batch
     curriculum = Curriculum(tc.curriculum)

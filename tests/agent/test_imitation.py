@@ -7,12 +7,19 @@ import json
 
 import pytest
 import torch
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from tests.agent.test_planner import ENV, FAST, straight_scene
 from tests.conftest import TINY_BATCH, TINY_TRAIN, run_cli
 from truckrl import imitate as imitate_cli
 from truckrl import plan as plan_cli
-from truckrl.agent.imitation import behaviour_clone, demonstrations, set_action_std
+from truckrl.agent.imitation import (
+    SAMPLES_NAME,
+    behaviour_clone,
+    demonstrations,
+    load_samples,
+    set_action_std,
+)
 from truckrl.agent.network import ModelConfig, make_actor_critic
 from truckrl.agent.planner import plan_states
 from truckrl.agent.policy import load_policy
@@ -79,15 +86,22 @@ def test_imitate_writes_a_checkpoint_that_train_resumes(tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     assert any(e["success"] for e in json.loads(plan_json.read_text())["per_episode"])
     out = tmp_path / "bc"
-    tiny = [*TINY_TRAIN, "env.max_steps=40"]
+    # with the cloning term on: the samples go beside the checkpoint, and the resume uses them
+    tiny = [o for o in TINY_TRAIN if not o.startswith("demos.bc_coeff")]
+    tiny += ["env.max_steps=40", "demos.bc_coeff=1"]
     proc = run_cli("imitate", str(plan_json), *tiny, "--epochs", "3", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     assert f"train: python -m truckrl.train resume={out}" in proc.stdout
     policy = load_policy(out)
     assert policy.counters["frames"] == 0 and policy.difficulty == 0.0
+    kept = int(proc.stdout.split(" samples")[0].rsplit(" ", 1)[-1])
+    assert load_samples(out / SAMPLES_NAME).numel() == kept > 0
     proc = run_cli("train", f"resume={out}", f"total_frames={TINY_BATCH}")
     assert proc.returncode == 0, proc.stderr
     assert load_policy(out).counters["frames"] == TINY_BATCH
+    acc = EventAccumulator(str(out / "tb"))
+    acc.Reload()
+    assert acc.Scalars("loss/bc")[0].value > 0
     # a plan made with other env settings is refused in one line
     capsys.readouterr()
     err = _exit_2(capsys, str(plan_json), *TINY_TRAIN, "--out", str(tmp_path / "x"))
@@ -108,3 +122,27 @@ def test_bad_options_are_one_line(capsys):
     assert _exit_2(capsys, "nowhere.json").startswith("error: plan nowhere.json")
     err = _exit_2(capsys, "nowhere.json", "--std", "0")
     assert err.strip() == "error: --std = 0 must be in [0.001, 10]"
+
+
+def test_samples_file_round_trips_and_a_bad_one_is_one_line(tmp_path):
+    from tensordict import TensorDict
+
+    from truckrl.agent.imitation import save_samples
+
+    g = torch.Generator().manual_seed(0)
+    samples = TensorDict(
+        {"observation": torch.randn(5, 26, generator=g), "lidar": torch.rand(5, 16, generator=g),
+         "action": torch.rand(5, 2, generator=g) * 2 - 1},
+        [5],
+    )  # fmt: skip
+    path = save_samples(tmp_path / SAMPLES_NAME, samples)
+    back = load_samples(path)
+    assert back.batch_size == torch.Size([5])
+    assert all(torch.equal(back[k], samples[k]) for k in ("observation", "lidar", "action"))
+    assert not list(tmp_path.glob(".*"))  # written atomically: no temp file left
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a torch file")
+    for p, text in ((bad, "is not a demonstrations file"), (tmp_path / "no.pt", "does not exist")):
+        with pytest.raises(ValueError, match=text) as e:
+            load_samples(p)
+        assert str(p) in str(e.value) and len(str(e.value).splitlines()) == 1

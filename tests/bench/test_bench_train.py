@@ -39,6 +39,20 @@ def test_tiny_run_writes_the_parts_of_each_iteration(tmp_path, capsys):
         assert r["loss_forward_s"] > 0 and r["backward_s"] > 0 and r["collect_s"] > 0
 
 
+def test_the_cloning_term_is_timed_on_stand_in_samples(tmp_path, capsys):
+    """``demos.bc_coeff > 0`` (experiment=demos): the update runs the cloning term, on the first
+    batch's observations and actions, and the record says so; without it there is none."""
+    for coeff in (1.0, 0.0):
+        out = tmp_path / f"bc{coeff}.json"
+        argv = ["train", *TINY, f"demos.bc_coeff={coeff}", "--iterations", "1"]
+        main([*argv, "--warmup", "0", "--output", str(out)])
+        record = json.loads(out.read_text())
+        assert record["config"]["bc_coeff"] == coeff
+        assert ("loss_bc" in record["rows"][0]) == (coeff > 0)
+    assert record["rows"][0]["total_s"] > 0
+    capsys.readouterr()
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [

@@ -23,7 +23,7 @@ from truckrl.agent.progress import Progress, stop_lines
 @pytest.mark.parametrize(
     ("entry", "must", "must_not"),
     [
-        ("train", ["stop_difficulty=6.0", "demos.episodes=0", "max_minutes=60", "total_frames=null", "experiment=",
+        ("train", ["stop_difficulty=null", "demos.episodes=600", "demos.bc_coeff=1", "max_minutes=60", "total_frames=null", "experiment=",
                    "control=", "task=", "device=", "seed=", "resume=", "Examples"], []),
         ("evaluate", ["checkpoint=", "difficulty=", "episodes=", "seed=", "Examples"], ["ppo."]),
         ("play", ["checkpoint=", "headless=true", "record=", "difficulty=", "Keys", "Examples"],

@@ -1,9 +1,10 @@
 """Training-iteration profile: frames/s and where one PPO iteration's time goes.
 
 Runs the real training loop's pieces on the ``train`` config composed as ``python -m
-truckrl.train`` composes it (``experiment=fast`` by default; the demonstrations that
-``experiment=demos`` clones first are not timed; Hydra overrides as positional
-arguments or ``--override KEY=VALUE``): the env from ``make_env``, the actor-critic, the
+truckrl.train`` composes it (Hydra overrides as positional arguments or ``--override
+KEY=VALUE``; the planning and cloning that ``experiment=demos`` does first are not timed, and
+its cloning term, ``demos.bc_coeff > 0``, runs on stand-in samples: the first batch's
+observations and actions, the same work per minibatch as real demonstrations): the env from ``make_env``, the actor-critic, the
 ``Collector``, the curriculum bookkeeping, :class:`~truckrl.agent.ppo.PPO` and the TensorBoard
 logger (into a temporary folder). After ``--warmup`` untimed iterations (they absorb
 ``torch.compile``), each of ``--iterations`` timed iterations is split into:
@@ -186,7 +187,7 @@ def run(args: argparse.Namespace) -> dict:
     from truckrl.agent.collection import check_difficulty, make_env, set_difficulty
     from truckrl.agent.curriculum import Curriculum
     from truckrl.agent.metrics import EpisodeTracker, iteration_scalars
-    from truckrl.agent.network import make_actor_critic
+    from truckrl.agent.network import LIDAR_KEY, OBS_KEY, make_actor_critic
     from truckrl.agent.ppo import PPO
     from truckrl.cli import seed_everything
     from truckrl.run_logger import RunLogger
@@ -239,8 +240,13 @@ def run(args: argparse.Namespace) -> dict:
                     tolerance = set_difficulty(env, curriculum.difficulty)
                 _sync(device)
                 t2 = time.perf_counter()
+                if tc.demos.bc_coeff > 0 and ppo.demos is None:  # stand-in demonstrations
+                    ppo.demos = batch.reshape(-1).select(OBS_KEY, LIDAR_KEY, "action").clone()
+                    ppo.bc_coeff, ppo.bc_batch = tc.demos.bc_coeff, tc.demos.bc_batch
                 with _profiler(it == last) as prof:
                     learn = ppo.update(batch, timings=spans)
+                if "loss_bc" in learn:
+                    learn["bc_coeff"] = ppo.bc_coeff
                 t3 = time.perf_counter()
                 collector.update_policy_weights_()
                 _sync(device)
@@ -267,6 +273,8 @@ def run(args: argparse.Namespace) -> dict:
                     "log_s": t5 - t4,
                 }
                 row["other_s"] = max(0.0, total - sum(row[p] for p in PARTS))
+                if "loss_bc" in learn:  # the cloning term ran (its time is in the PPO spans)
+                    row["loss_bc"] = learn["loss_bc"]
                 rows.append(row)
                 print(
                     f"  iteration {row['iteration']}: {row['frames/s']:,.0f} frames/s "
@@ -313,6 +321,7 @@ def run(args: argparse.Namespace) -> dict:
         "env_compile": tc.env.compile,
         "num_epochs": tc.ppo.num_epochs,
         "num_minibatches": tc.ppo.num_minibatches,
+        "bc_coeff": tc.demos.bc_coeff,
         "device": tc.device,
     }
     args_json = {k: v for k, v in vars(args).items() if not k.startswith("_")}
