@@ -9,8 +9,9 @@ episodes to the curriculum in start order (:mod:`truckrl.agent.cohorts`; a promo
 every worker before the next collection), runs the PPO update and logs to ``<run_dir>/tb``.
 ``<run_dir>/checkpoints/last.pt`` is written every ``checkpoint.interval`` iterations and at the
 end; ``best.pt`` after each held-out evaluation that beats every earlier one (higher difficulty,
-or the same difficulty and a higher success rate; ``checkpoint.keep_best``). A run stops at ``stop_difficulty`` (6, the paper's goal, in ``experiment=fast``; none in the
-default ``experiment=demos``, which trains on at 6), ``max_minutes`` (60),
+or the same difficulty and a higher success rate; ``checkpoint.keep_best``). A run stops at
+``stop_difficulty`` (6, the paper's goal, in ``experiment=fast``; none in the default
+``experiment=demos``, which trains on at 6), ``max_minutes`` (60),
 ``total_frames`` or a signal (at the next iteration boundary, with a checkpoint, exit 0;
 :mod:`truckrl.agent.session`); its last lines say why and what to run next.
 

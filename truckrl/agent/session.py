@@ -52,8 +52,8 @@ STOP_SIGNALS = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGUSR2") if hasattr(signal, name)
 )
 #: What a training run writes into its run dir (cleared by ``overwrite=true``).
-RUN_OUTPUTS = (CHECKPOINT_DIR, "tb", "videos", "source.json", "parent.json", "demos.json")
-RUN_OUTPUTS += ("demos.pt",)  # imitation.SAMPLES_NAME
+RUN_OUTPUTS = (CHECKPOINT_DIR, "tb", "videos", "source.json", "parent.json")
+RUN_OUTPUTS += ("demos.json", "demos.pt")  # the demonstrations' summary and samples (imitation)
 PARENT_FILE = "parent.json"
 AUTO = "auto"
 

@@ -4,8 +4,8 @@ Runs the real training loop's pieces on the ``train`` config composed as ``pytho
 truckrl.train`` composes it (Hydra overrides as positional arguments or ``--override
 KEY=VALUE``; the planning and cloning that ``experiment=demos`` does first are not timed, and
 its cloning term, ``demos.bc_coeff > 0``, runs on stand-in samples: the first batch's
-observations and actions, the same work per minibatch as real demonstrations): the env from ``make_env``, the actor-critic, the
-``Collector``, the curriculum bookkeeping, :class:`~truckrl.agent.ppo.PPO` and the TensorBoard
+observations and actions, the same work per minibatch as real demonstrations): the env from
+``make_env``, the actor-critic, the ``Collector``, the curriculum bookkeeping, :class:`~truckrl.agent.ppo.PPO` and the TensorBoard
 logger (into a temporary folder). After ``--warmup`` untimed iterations (they absorb
 ``torch.compile``), each of ``--iterations`` timed iterations is split into:
 
