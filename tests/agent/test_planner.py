@@ -3,6 +3,8 @@ unsolved, returns ``evaluate_policy``'s result keys, and its CLI rejects bad opt
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -10,7 +12,14 @@ from tensordict.nn import TensorDictModule
 
 from tests.conftest import run_cli
 from truckrl import plan as plan_cli
-from truckrl.agent.planner import PlannerConfig, knot_matrix, plan_episodes, plan_states, replay
+from truckrl.agent.planner import (
+    Planner,
+    PlannerConfig,
+    knot_matrix,
+    plan_episodes,
+    plan_states,
+    replay,
+)
 from truckrl.agent.rollout import evaluate_policy
 from truckrl.sim.vehicle import VehicleConfig
 from truckrl.task import EnvConfig, make_task
@@ -95,6 +104,80 @@ def test_bad_planner_config_is_rejected():
         PlannerConfig(samples=1)
     with pytest.raises(ConfigError, match="steer_axis"):
         PlannerConfig(steer_axis="space")
+
+
+def _arc_prior(start, goal, last):
+    """The arc prior ``[N, 3]`` of mid-range trucks at ``start`` / ``goal`` poses ``[N, 3]`` for
+    candidates whose last parameter is ``last [N]``, and those trucks' parameters."""
+    planner = Planner(ENV, {**FAST, "steer_prior": "arc"})
+    bounds = VehicleConfig().bounds()
+    n = start.shape[0]
+    params = {k: torch.full((n,), 0.5 * (lo + hi)) for k, (lo, hi) in bounds.items()}
+    pose = torch.cat((start, torch.zeros(n, 1)), -1)
+    x = torch.zeros(n, planner.config.num_params)
+    x[:, -1] = last
+    return planner._arc({"pose": pose, "goal": goal, "params": params}, x), params
+
+
+def test_arc_prior_is_the_circle_tangent_to_both_lanes():
+    # start at the origin heading +x; goal lanes: x = 20 heading +y (a 90 deg left turn, corner
+    # (20, 0): 20 m to the corner, 30 m after it), x = 20 heading -y (a right turn), y = -3
+    # heading +x (parallel lanes: no corner)
+    start = torch.zeros(4, 3)
+    goal = torch.tensor(
+        [
+            [20.0, 30.0, math.pi / 2],
+            [20.0, 30.0, math.pi / 2],
+            [20.0, -30.0, -math.pi / 2],
+            [40.0, -3.0, 0.0],
+        ]
+    )
+    arc, p = _arc_prior(start, goal, torch.tensor([1.0, -1.0, -1.0, 0.0]))
+    wheelbase, steer_max, l_ka = (
+        float(p[k][0]) for k in ("wheelbase", "max_steer", "trailer_wheelbase")
+    )
+    r_lo = max(wheelbase / math.tan(steer_max), l_ka)
+    # largest circle: R = min(20, 30) / tan(45 deg) = 20, tangent to the start lane at the start
+    assert arc[0].tolist() == pytest.approx([0.0, 20.0 * math.pi / 2, math.atan(wheelbase / 20.0)])
+    # tightest: R_lo, entered R_lo before the corner
+    left = [20.0 - r_lo, 20.0 - r_lo + r_lo * math.pi / 2, math.atan(wheelbase / r_lo)]
+    assert arc[1].tolist() == pytest.approx(left, rel=1e-5)
+    assert arc[2].tolist() == pytest.approx([left[0], left[1], -left[2]], rel=1e-5)  # right turn
+    assert arc[3, 2] == 0.0  # parallel lanes: no prior
+
+
+def test_arc_prior_refuses_a_task_that_reverses():
+    from truckrl.sim.validation import ConfigError
+
+    for prior in ("arc", "alternate"):
+        with pytest.raises(ConfigError, match="steer_prior"):
+            Planner(EnvConfig(task={"name": "dock"}), {**FAST, "steer_prior": prior})
+    with pytest.raises(ConfigError, match="steer_prior"):
+        PlannerConfig(steer_prior="spiral")
+
+
+@pytest.mark.parametrize("prior", ["arc", "alternate"])
+def test_arc_prior_solves_a_straight_scene(prior):
+    # parallel lanes: the prior is 0, and the knots alone solve it
+    res, _, _ = plan_states(ENV, straight_scene(), 2.0, {**FAST, "steer_prior": prior})
+    assert bool(res["success"][0]) and not res["replay_mismatch"][0]
+
+
+def test_alternate_attempts_take_the_arc_first_then_the_knots_alone():
+    # a walled-off scene is never solved, so it uses all its attempts; the rollouts see which
+    planner = Planner(ENV, {**FAST, "steer_prior": "alternate", "attempts": 3, "iterations": 1})
+    seen: list[list[bool]] = []
+    rollout = planner.rollout
+
+    def spy(start, x, difficulty, arc_on=None):
+        seen.append(arc_on.tolist())
+        return rollout(start, x, difficulty, arc_on)
+
+    planner.rollout = spy
+    out = planner.plan(straight_scene(wall=True), 2.0)
+    assert out["attempts"].tolist() == [3]
+    assert [rows[0] for rows in seen] == [True, False, True]
+    assert all(len(set(rows)) == 1 for rows in seen)  # one attempt per batch here
 
 
 @pytest.mark.parametrize(

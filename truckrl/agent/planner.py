@@ -7,7 +7,8 @@ and it is scored like a policy: :func:`plan_episodes` returns the per-episode re
 ``episodes`` and ``seed``), plus each scene's route and vehicle parameters for
 :mod:`truckrl.agent.categories`.
 
-Parameterisation (``5 + steer_knots + speed_knots`` numbers in ``[-1, 1]`` per candidate)
+Parameterisation (``5 + steer_knots + speed_knots`` numbers in ``[-1, 1]`` per candidate, one
+more with the arc prior)
     * ``steer_knots`` steering set-points (fractions of ``max_steer``) spread over the distance
       driven, ``0 .. path_stretch x start-goal distance + path_extra`` (``steer_axis=distance``;
       the path then hardly depends on the speed), or over the horizon's steps;
@@ -34,6 +35,14 @@ Parameterisation (``5 + steer_knots + speed_knots`` numbers in ``[-1, 1]`` per c
     forwards it is the planned blend. The goal line is the line through the goal position
     along the goal heading, so any goal point on the trailer's final axis works. Forward-only
     tasks are planned exactly as before (bit-identical).
+
+    With ``steer_prior=arc`` (forward tasks) one more parameter plans the radius of a circular arc
+    tangent to the start lane and the goal lane (:meth:`Planner._arc`), whose steering is added to
+    the knots': the mean candidate then drives the turn on that arc, and the knots are
+    corrections to it (initial std ``arc_init_std``), instead of a straight line that CEM must
+    first bend into a turn. ``steer_prior=alternate`` gives a scene's attempts the arc and the
+    knots alone in turn (the first attempt the arc): the arc finds left turns that the knots
+    miss, the knots' wider search the wide swings of sharp right turns.
 
     At every step a deadbeat tracker turns the two set-points into the action the control mode
     expects (default: acceleration and steering rate), clamped to ``[-1, 1]``, so the steering-
@@ -87,9 +96,11 @@ from truckrl.agent.categories import trailer_length
 from truckrl.agent.rollout import SCENE_INFO_ENTRIES, policy_actions
 from truckrl.env import TruckEnv
 from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES, MODE_TABLE
+from truckrl.sim.geometry import wrap_angle
 from truckrl.sim.validation import ConfigError, build, check_range, param, validate
 from truckrl.sim.vehicle import PARAM_KEYS, REVERSE_KEYS
 from truckrl.task import MAX_DIFFICULTY, OUTCOMES, EnvConfig, Quantity, make_task, shown
+from truckrl.task.intersection import MIN_CORNER_SIN
 
 #: Cost subtracted from a successful candidate: every success ranks before every failure.
 SUCCESS_BONUS = 1.0e6
@@ -166,6 +177,21 @@ class PlannerConfig:
     brake: float = param(
         0.5, lo=0.0, lo_open=True, hi=1.0, unit="-", doc="arrival: deceleration / max_accel"
     )
+    steer_prior: str = param(
+        "none",
+        choices=("none", "arc", "alternate"),
+        doc="arc: the steering knots are residuals on the steering of a circular arc tangent to "
+        "the start and goal heading lines, of planned radius (module doc; forward tasks only); "
+        "alternate: a scene's attempts alternate between the arc (first) and the knots alone",
+    )
+    arc_init_std: float = param(
+        0.3,
+        lo=0.0,
+        lo_open=True,
+        hi=10.0,
+        unit="-",
+        doc="initial std of an attempt with the arc prior (the knots are corrections to it)",
+    )
     speed_mean: float = param(
         0.0,
         lo=-1.0,
@@ -203,7 +229,7 @@ class PlannerConfig:
 
     @property
     def num_params(self) -> int:
-        return self.steer_knots + self.speed_knots + NUM_EXTRA
+        return self.steer_knots + self.speed_knots + NUM_EXTRA + (self.steer_prior != "none")
 
 
 def knot_matrix(steps: int, knots: int, device: torch.device | str | None = None) -> Tensor:
@@ -263,6 +289,11 @@ class Planner:
         self.config = build(PlannerConfig, config, "planner")
         self.device = torch.device(device)
         self.task = make_task(self.env_cfg).to(self.device)
+        if self.config.steer_prior != "none" and self.task.reverse:
+            raise ConfigError(
+                f"planner.steer_prior = {self.config.steer_prior!r} plans forward driving only; task "
+                f"{self.env_cfg.task.name!r} reverses: use steer_prior=none"
+            )
         cfg, pc = self.env_cfg, self.config
         self.horizon = cfg.max_steps
         self.w_steer = knot_matrix(self.horizon, pc.steer_knots, self.device)
@@ -402,12 +433,13 @@ class Planner:
         vknots: Tensor,
         span: Tensor,
         plan: Tensor,
+        arc: Tensor,
     ) -> tuple[dict[str, Tensor], Tensor, dict[str, Tensor]]:
         """One step of every candidate: build the set-points (from ``ref [N, 2]``, the time-indexed
         steer [rad] and speed [m/s], or from the distance-indexed ``knots [N, Ms]`` [rad] and
         ``vknots [N, Mv]`` [m/s] at the distance driven over ``span [N]`` [m]; then the pursuit
-        and the arrival cap of ``plan [N, 5]``), track them, advance, test the outcome and update
-        the bookkeeping ``acc``."""
+        and the arrival cap of ``plan [N, 5]``; plus the arc prior ``arc [N, 3]`` of
+        :meth:`_arc`), track them, advance, test the outcome and update the bookkeeping ``acc``."""
         p = s["params"]
         speed_ref = (
             ref[:, 1] if self.config.speed_axis == "time" else _interp(vknots, acc["travel"] / span)
@@ -426,6 +458,8 @@ class Planner:
             steer_ref = _interp(knots, acc["travel"] / span)
         else:
             steer_ref = ref[:, 0]
+        on_arc = (acc["travel"] >= arc[:, 0]) & (acc["travel"] < arc[:, 1])
+        steer_ref = steer_ref + torch.where(on_arc, arc[:, 2], 0.0)
         if self.config.pursuit != "none":  # (switch = inf otherwise)
             if self.task.reverse:
                 law = self._pursuit_signed(s, plan, speed_ref < 0)
@@ -506,9 +540,46 @@ class Planner:
             (switch, l0 + f[:, 1] * (l1 - l0), g0 + f[:, 2] * (g1 - g0), w, arrive), -1
         )
 
+    def _arc(self, s: dict[str, Any], x: Tensor) -> Tensor:
+        """``[N, 3]`` arc prior of candidates ``x [N, P]`` (``steer_prior=arc``, else zeros): the
+        travel [m] where the arc starts and ends, and its steering angle [rad].
+
+        The start lane is the line through the start rear axle along its heading, the goal lane
+        likewise; where they meet at a corner ahead of the start and before the goal (turn
+        ``|sin| >= MIN_CORNER_SIN``, as :func:`truckrl.task.intersection.route_path`), the prior is
+        the circle of radius ``R`` tangent to both lanes, driven by the tractor rear axle at
+        steering ``atan(wheelbase / R)``: straight for ``a - R tan(turn / 2)``, then the arc for
+        ``R |turn|`` (``a``, ``b``: start-corner and corner-goal distances). ``R`` runs from
+        ``R_lo = max(wheelbase / tan(max_steer), trailer wheelbase)`` (the tractor's tightest
+        circle, and the kingpin circle below which the articulation grows to the jack-knife
+        limit) to the largest circle that fits both legs, ``min(a, b) / tan(turn / 2)``, at the
+        candidate's last parameter. Elsewhere (parallel lanes: a straight road, straight on) the
+        prior is 0 and the knots steer alone."""
+        n = x.shape[0]
+        if self.config.steer_prior == "none":
+            return torch.zeros(n, 3, device=x.device)
+        pose, goal, p = s["pose"], s["goal"], s["params"]
+        f = 0.5 * (x[:, -1] + 1.0)  # [0, 1]
+        u = torch.stack((pose[:, 2].cos(), pose[:, 2].sin()), -1)
+        v = torch.stack((goal[:, 2].cos(), goal[:, 2].sin()), -1)
+        d = goal[:, :2] - pose[:, :2]
+        cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]  # sin(turn)
+        safe = torch.where(cross.abs() < 1e-9, torch.ones_like(cross), cross)
+        a = (d[:, 0] * v[:, 1] - d[:, 1] * v[:, 0]) / safe  # start -> corner [m]
+        b = (u[:, 0] * d[:, 1] - u[:, 1] * d[:, 0]) / safe  # corner -> goal [m]
+        turn = wrap_angle(goal[:, 2] - pose[:, 2])
+        real = (cross.abs() >= MIN_CORNER_SIN) & (a > 0) & (b > 0)
+        half = (0.5 * turn.abs()).tan().clamp_min(1e-6)
+        r_lo = torch.maximum(p["wheelbase"] / p["max_steer"].tan(), p["trailer_wheelbase"])
+        r_fit = torch.minimum(a, b) / half
+        r = r_lo + f * (r_fit - r_lo).clamp_min(0.0)
+        begin = (a - r * half).clamp_min(0.0)
+        steer = torch.where(real, turn.sign() * torch.atan(p["wheelbase"] / r), 0.0)
+        return torch.stack((begin, begin + r * turn.abs(), steer), -1)
+
     @torch.no_grad()
     def rollout(
-        self, start: TensorDictBase, x: Tensor, difficulty: float
+        self, start: TensorDictBase, x: Tensor, difficulty: float, arc_on: Tensor | None = None
     ) -> tuple[dict[str, Tensor], Tensor]:
         """Roll candidates ``x [N, P]`` out from ``start [N]`` (one state row per candidate).
 
@@ -527,6 +598,9 @@ class Planner:
         start_goal = (s["goal"][:, :2] - s["pose"][:, :2]).norm(dim=-1)
         span = self.config.path_stretch * start_goal + self.config.path_extra
         plan = self._extras(x, s["params"], span)
+        arc = self._arc(s, x)
+        if arc_on is not None:  # candidates of knots-only attempts (steer_prior=alternate)
+            arc[:, 2] = torch.where(arc_on, arc[:, 2], 0.0)
         diff = torch.full((n,), float(difficulty), device=dev)
         score0, worst0 = self._score(s, diff)
         zero_i = torch.zeros(n, dtype=torch.int64, device=dev)
@@ -540,7 +614,7 @@ class Planner:
         }
         actions = torch.zeros(self.horizon, n, 2, device=dev)
         for t in range(self.horizon):
-            new, actions[t], acc = self._step(s, refs[t], diff, acc, knots, vknots, span, plan)
+            new, actions[t], acc = self._step(s, refs[t], diff, acc, knots, vknots, span, plan, arc)
             s = {**s, **new}
             if (t + 1) % ALIVE_CHECK_EVERY == 0 and not bool(acc["alive"].any()):
                 break
@@ -593,7 +667,10 @@ class Planner:
                         break
                     scene = min(spare, key=lambda i: int(started[i]))
                 started[scene] += 1
-                jobs.append(_Job(scene, pc, dev))
+                arc = pc.steer_prior == "arc" or (
+                    pc.steer_prior == "alternate" and int(started[scene]) % 2 == 1
+                )
+                jobs.append(_Job(scene, pc, dev, arc))
             owner = [jobs[j % len(jobs)] for j in range(slots)]
             mean = torch.stack([j.mean for j in owner])
             std = torch.stack([j.std for j in owner])
@@ -606,7 +683,8 @@ class Planner:
                     xs[j, 0] = job.best_x  # elitism: the best candidate so far rides along
             x = xs.reshape(slots * k, pc.num_params)
             rows = torch.tensor([job.scene for job in owner], device=dev).repeat_interleave(k)
-            acc, actions = self.rollout(states[rows], x, difficulty)
+            arc_on = torch.tensor([job.arc for job in owner], device=dev).repeat_interleave(k)
+            acc, actions = self.rollout(states[rows], x, difficulty, arc_on)
             rollouts += slots * k
             cost = (acc["best"] - SUCCESS_BONUS * acc["success"].float()).cpu()
             score = acc["best"].cpu()
@@ -662,11 +740,14 @@ class Planner:
 class _Job:
     """One CEM attempt at one scene: its Gaussian over the knots and its best candidate."""
 
-    def __init__(self, scene: int, pc: PlannerConfig, device: torch.device) -> None:
-        self.scene, self.pc, self.iters = scene, pc, 0
+    def __init__(
+        self, scene: int, pc: PlannerConfig, device: torch.device, arc: bool = False
+    ) -> None:
+        self.scene, self.pc, self.iters, self.arc = scene, pc, 0, arc
         self.mean = torch.zeros(pc.num_params, device=device)
         self.mean[pc.steer_knots : pc.steer_knots + pc.speed_knots] = pc.speed_mean
-        self.std = torch.full((pc.num_params,), pc.init_std, device=device)
+        std = pc.arc_init_std if arc else pc.init_std
+        self.std = torch.full((pc.num_params,), std, device=device)
         self.best_x = self.mean.clone()
         self.best_cost = math.inf
 
