@@ -100,7 +100,7 @@ from truckrl.sim.geometry import wrap_angle
 from truckrl.sim.validation import ConfigError, build, check_range, param, validate
 from truckrl.sim.vehicle import PARAM_KEYS, REVERSE_KEYS
 from truckrl.task import MAX_DIFFICULTY, OUTCOMES, EnvConfig, Quantity, make_task, shown
-from truckrl.task.intersection import MIN_CORNER_SIN
+from truckrl.task.intersection import lane_corner
 
 #: Cost subtracted from a successful candidate: every success ranks before every failure.
 SUCCESS_BONUS = 1.0e6
@@ -545,8 +545,8 @@ class Planner:
         travel [m] where the arc starts and ends, and its steering angle [rad].
 
         The start lane is the line through the start rear axle along its heading, the goal lane
-        likewise; where they meet at a corner ahead of the start and before the goal (turn
-        ``|sin| >= MIN_CORNER_SIN``, as :func:`truckrl.task.intersection.route_path`), the prior is
+        likewise; where they meet at a corner ahead of the start and before the goal
+        (:func:`truckrl.task.intersection.lane_corner`, as the lane route), the prior is
         the circle of radius ``R`` tangent to both lanes, driven by the tractor rear axle at
         steering ``atan(wheelbase / R)``: straight for ``a - R tan(turn / 2)``, then the arc for
         ``R |turn|`` (``a``, ``b``: start-corner and corner-goal distances). ``R`` runs from
@@ -560,15 +560,8 @@ class Planner:
             return torch.zeros(n, 3, device=x.device)
         pose, goal, p = s["pose"], s["goal"], s["params"]
         f = 0.5 * (x[:, -1] + 1.0)  # [0, 1]
-        u = torch.stack((pose[:, 2].cos(), pose[:, 2].sin()), -1)
-        v = torch.stack((goal[:, 2].cos(), goal[:, 2].sin()), -1)
-        d = goal[:, :2] - pose[:, :2]
-        cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]  # sin(turn)
-        safe = torch.where(cross.abs() < 1e-9, torch.ones_like(cross), cross)
-        a = (d[:, 0] * v[:, 1] - d[:, 1] * v[:, 0]) / safe  # start -> corner [m]
-        b = (u[:, 0] * d[:, 1] - u[:, 1] * d[:, 0]) / safe  # corner -> goal [m]
+        a, b, real = lane_corner(pose[:, :3], goal)  # start -> corner, corner -> goal [m]
         turn = wrap_angle(goal[:, 2] - pose[:, 2])
-        real = (cross.abs() >= MIN_CORNER_SIN) & (a > 0) & (b > 0)
         half = (0.5 * turn.abs()).tan().clamp_min(1e-6)
         r_lo = torch.maximum(p["wheelbase"] / p["max_steer"].tan(), p["trailer_wheelbase"])
         r_fit = torch.minimum(a, b) / half

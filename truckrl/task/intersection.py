@@ -182,16 +182,34 @@ def route_path(start: Tensor, goal: Tensor) -> Tensor:
         goal: ``[N, 3]`` goal pose, same convention.
     """
     s, g = start[:, :2], goal[:, :2]
+    ahead, _, ok = lane_corner(start, goal)
+    u = torch.stack((start[:, 2].cos(), start[:, 2].sin()), -1)
+    corner = torch.where(ok[:, None], s + ahead[:, None] * u, 0.5 * (s + g))
+    return torch.stack((s, corner, g), 1)
+
+
+def lane_corner(start: Tensor, goal: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Where the start lane meets the goal lane (the lines through each pose along its heading).
+
+    Args:
+        start: ``[N, 3]`` start pose ``(x, y, heading)`` [m, m, rad].
+        goal: ``[N, 3]`` goal pose, same convention.
+
+    Returns:
+        ``(ahead [N] [m], before [N] [m], ok [N] bool)``: the distance from the start to the
+        corner along the start heading, from the corner to the goal along the goal heading, and
+        whether the corner is a real one (lanes at least ``MIN_CORNER_SIN`` from parallel, the
+        corner ahead of the start and before the goal; elsewhere the distances are meaningless).
+    """
     u = torch.stack((start[:, 2].cos(), start[:, 2].sin()), -1)
     v = torch.stack((goal[:, 2].cos(), goal[:, 2].sin()), -1)
-    d = g - s
+    d = goal[:, :2] - start[:, :2]
     cross_uv = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
     safe = torch.where(cross_uv.abs() < 1e-9, torch.ones_like(cross_uv), cross_uv)
     ahead = (d[:, 0] * v[:, 1] - d[:, 1] * v[:, 0]) / safe  # start -> corner along u [m]
     before = (u[:, 0] * d[:, 1] - u[:, 1] * d[:, 0]) / safe  # corner -> goal along v [m]
     ok = (cross_uv.abs() >= MIN_CORNER_SIN) & (ahead > 0) & (before > 0)
-    corner = torch.where(ok[:, None], s + ahead[:, None] * u, 0.5 * (s + g))
-    return torch.stack((s, corner, g), 1)
+    return ahead, before, ok
 
 
 def route_reference(xy: Tensor, path: Tensor, goal_heading: Tensor) -> tuple[Tensor, Tensor]:
