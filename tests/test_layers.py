@@ -25,6 +25,7 @@ ENTRY = {
     "imitate",
     "plan",
     "diagnose",
+    "paths",
     "export",
     "runner",
     "cli",

@@ -51,7 +51,7 @@ def test_run_writes_events_config_and_checkpoint(run_dir):
     state = load_checkpoint(run_dir)
     assert state["counters"]["iteration"] == 4
     assert state["counters"]["frames"] == 4 * BATCH
-    assert state["num_beams"] == 16 and state["num_obs"] == 26
+    assert state["num_beams"] == 32 and state["num_obs"] == 26  # experiment=demos: 32 beams
     assert "ppo:" in state["config"]
     assert scalar_steps(run_dir) == [BATCH * i for i in range(1, 5)]
     acc = EventAccumulator(str(run_dir / "tb"))
@@ -138,7 +138,7 @@ def test_demonstrations_start_the_run_and_a_resume_does_not_plan_again(tmp_path)
     log_std = next(v for k, v in std.items() if k.endswith("log_std"))
     assert torch.allclose(log_std.exp(), torch.tensor(0.3), atol=0.05)  # set, then one update
     saved = torch.load(tmp_path / "demos.pt", weights_only=True)
-    assert len(saved["action"]) == info["samples"] and saved["lidar"].shape[1] == 16
+    assert len(saved["action"]) == info["samples"] and saved["lidar"].shape[1] == 32
     assert scalar_steps(tmp_path, "train/bc_coeff") == [BATCH]
     proc = train(f"resume={tmp_path}", f"total_frames={2 * BATCH}", *demos)
     assert "demonstrations:" not in proc.stdout
@@ -192,6 +192,24 @@ def test_init_starts_a_new_run_from_another_runs_weights(run_dir, tmp_path):
     assert not torch.allclose(load_checkpoint(fresh)["model"][MEAN], old[MEAN], atol=1e-3)
 
 
+def test_fine_tune_of_the_shipped_policy_names_its_beams(tmp_path):
+    """The README's fine-tune: the shipped policy sees 16 beams, the default run 32; without
+    ``env.lidar.num_beams=16`` the run stops in one line that says so, with it the run starts
+    from those weights."""
+    proc = train("init=pretrained", f"hydra.run.dir={tmp_path / 'a'}", check=False)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert (
+        proc.stderr.strip()
+        .splitlines()[-1]
+        .endswith("16 LiDAR beams; this run's env gives 26 and 32 (set env.lidar.num_beams=16)")
+    )
+    ok = tmp_path / "b"
+    train(
+        "init=pretrained", "env.lidar.num_beams=16", f"total_frames={BATCH}", f"hydra.run.dir={ok}"
+    )
+    assert load_checkpoint(ok)["num_beams"] == 16
+
+
 def test_train_env_changes_the_training_envs_only(tmp_path):
     """``train_env.tolerance.position=12``: the training envs run with 12 m at difficulty 0 (the
     logged tolerance), while the checkpoint's ``env`` keeps the paper's 30 m for evaluation."""
@@ -208,7 +226,10 @@ def test_train_env_changes_the_training_envs_only(tmp_path):
     ("override", "message"),
     [
         ("init=no/such/run", "error: checkpoint not found: no/such/run"),
-        ("env.lidar.num_beams=32", "16 LiDAR beams; this run's env gives 26 and 32"),
+        (
+            "env.lidar.num_beams=16",
+            "32 LiDAR beams; this run's env gives 26 and 16 (set env.lidar.num_beams=32)",
+        ),
     ],
 )
 def test_init_that_does_not_fit_is_one_line(run_dir, tmp_path, override, message):

@@ -365,11 +365,20 @@ def load_weights(model: torch.nn.Module, weights: dict[str, Any], p: Path | str)
         ) from None
 
 
-def _check_sizes(state: dict[str, Any], num_obs: int, num_beams: int, env: str) -> None:
+def _check_sizes(
+    state: dict[str, Any], num_obs: int, num_beams: int, env: str, settable: bool = False
+) -> None:
+    """One line where the weights do not fit ``num_obs`` / ``num_beams``; ``settable``: the
+    caller's env takes ``env.lidar.num_beams`` from the command line, so the line names it."""
     if (state["num_obs"], state["num_beams"]) != (num_obs, num_beams):
+        hint = (
+            f" (set env.lidar.num_beams={state['num_beams']})"
+            if settable and state["num_obs"] == num_obs
+            else ""
+        )
         raise CheckpointError(
             f"{state['path']}: the weights are for {state['num_obs']} observations and "
-            f"{state['num_beams']} LiDAR beams; {env} gives {num_obs} and {num_beams}"
+            f"{state['num_beams']} LiDAR beams; {env} gives {num_obs} and {num_beams}{hint}"
         )
 
 
@@ -387,7 +396,7 @@ def load_init_weights(
     Raises:
         CheckpointError: one line naming what does not fit.
     """
-    _check_sizes(state, num_obs, num_beams, "this run's env")
+    _check_sizes(state, num_obs, num_beams, "this run's env", settable=True)
     load_weights(model, state["model"], state["path"])
 
 

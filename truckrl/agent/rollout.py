@@ -33,6 +33,7 @@ def evaluate_policy(
     episodes: int,
     seed: int,
     device: str | torch.device = "cpu",
+    record_paths: bool = False,
 ) -> tuple[dict[str, Tensor], tuple[float, float], tuple[Quantity, ...]]:
     """Run one episode in each of ``episodes`` seeded scenes with the mean action.
 
@@ -59,7 +60,12 @@ def evaluate_policy(
         intersection task the :data:`~truckrl.sim.scene.ROUTE_KEYS`, "route" (long,
         ``ROUTE_*``), "turn_angle" and "crossing_angle" [rad], "start_road_width",
         "goal_road_width" and "goal_distance" [m]. ``results`` is thus a valid input of
-        :func:`truckrl.agent.categories.task_bins`.
+        :func:`truckrl.agent.categories.task_bins`. With ``record_paths`` it also holds "path"
+        ``[E, T + 1, 4]``: the pose ``(x, y, heading, articulation)`` [m, m, rad, rad] at the
+        start and after each step, held at its last value once the episode has ended (``T``:
+        the steps the batch ran); the start states themselves (the scenes) are
+        :func:`truckrl.agent.planner.held_out_states` of the same env config, seed and
+        difficulty.
     """
     # eager: a one-off batch does not repay ~20 s of torch.compile
     env_cfg = dataclasses.replace(env_cfg, compile=False)
@@ -78,12 +84,15 @@ def evaluate_policy(
     for entry in SCENE_INFO_ENTRIES:
         if entry in start.keys():
             scene |= {k: start[entry, k] for k in start[entry].keys()}
+    path = [start["pose"]] if record_paths else None
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(env_cfg.max_steps):
             nxt = env.step(actor(td))["next"]
             new = nxt["done"].squeeze(-1) & ~ended
             for k in keys:
                 rec[k] = torch.where(new, nxt[k].squeeze(-1).to(torch.float32), rec[k])
+            if path is not None:  # the state after the step (an ended truck keeps its pose)
+                path.append(torch.where(ended[:, None], path[-1], env.get_state()["pose"]))
             ended |= new
             if bool(ended.all()):
                 break
@@ -95,6 +104,8 @@ def evaluate_policy(
         out[q.key] = shown(q, rec[q.key]).cpu()
     for k, v in scene.items():
         out[k] = v.long().cpu() if k == "route" else v.cpu()
+    if path is not None:
+        out["path"] = torch.stack(path, 1).cpu()
     return out, tolerance, errors
 
 
