@@ -92,9 +92,11 @@ def run(args: argparse.Namespace) -> Path:
     from truckrl.configs import TrainConfig
 
     tc = compose_config("train", TrainConfig, args.overrides)
-    # as stored; the reward weights do not change what a plan does (the planner has its own cost)
-    mine = json.loads(json.dumps({**dataclasses.asdict(tc.env), "compile": None}))
-    theirs = {**meta["env"], "compile": None}
+    # as stored; the reward weights do not change what a plan does (the planner has its own cost),
+    # nor does the LiDAR (a plan is actions from start states; the samples' scans are replayed
+    # with this run's sensor, so a plan from the paper's 16 beams serves the default run's 32)
+    mine = json.loads(json.dumps({**dataclasses.asdict(tc.env), "compile": None, "lidar": None}))
+    theirs = {**meta["env"], "compile": None, "lidar": None}
     for cfg in (mine, theirs):
         if isinstance(cfg.get("task"), dict):
             cfg["task"] = {k: v for k, v in cfg["task"].items() if k != "reward"}

@@ -95,7 +95,11 @@ def test_imitate_writes_a_checkpoint_that_train_resumes(tmp_path, capsys):
     policy = load_policy(out)
     assert policy.counters["frames"] == 0 and policy.difficulty == 0.0
     kept = int(proc.stdout.split(" samples")[0].rsplit(" ", 1)[-1])
-    assert load_samples(out / SAMPLES_NAME).numel() == kept > 0
+    samples = load_samples(out / SAMPLES_NAME)
+    assert samples.numel() == kept > 0
+    # planned with the plan CLI's env (the paper's 16 beams), replayed with the run's 32
+    assert json.loads(plan_json.read_text())["env"]["lidar"]["num_beams"] == 16
+    assert samples["lidar"].shape[1] == 32 and policy.env_config.lidar.num_beams == 32
     proc = run_cli("train", f"resume={out}", f"total_frames={TINY_BATCH}")
     assert proc.returncode == 0, proc.stderr
     assert load_policy(out).counters["frames"] == TINY_BATCH
