@@ -253,7 +253,7 @@ def test_policy_plays_the_mean_action_in_the_seeded_scene(run_dir):
     assert torch.equal(first["observation"], ref["observation"])
     assert torch.equal(first["lidar"], ref["lidar"])
 
-    ac = make_actor_critic(ModelConfig(), 26, 16)
+    ac = make_actor_critic(ModelConfig(), 26, state["num_beams"])  # the default run's 32
     ac.model.load_state_dict(state["model"])
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         expected = ac.actor(ref.select("observation", "lidar"))["loc"]
