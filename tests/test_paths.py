@@ -83,6 +83,7 @@ def test_cli_draws_one_row_per_checkpoint_in_the_same_scenes(tiny_checkpoint, tm
         (["--turn", "120", "90"], "--turn = 120 90 must be 0 <= LO < HI <= 180"),
         (["--labels", "a", "b"], "--labels: 2 given for 1 checkpoints"),
         (["--count", "0"], "--count = 0 must be in [1, 64]"),
+        (["--difficulty", "31"], "--difficulty = 31.0 must be in [0, "),
     ],
 )
 def test_bad_options_are_one_line(tiny_checkpoint, tmp_path, capsys, extra, message):

@@ -89,6 +89,26 @@ def run_or_fail(run: Callable[[Any], Any], args: Any) -> int:
     return 0
 
 
+def check_scene_options(args: argparse.Namespace) -> None:
+    """The options of a command that plays a checkpoint on held-out scenes (``--episodes``,
+    ``--seed``, ``--threads``, ``--difficulty``; argparse names).
+
+    Raises:
+        ConfigError: one line naming the option and its allowed range.
+    """
+    from truckrl.sim.validation import ConfigError
+    from truckrl.task import MAX_DIFFICULTY
+
+    if not 1 <= args.episodes <= 100_000:
+        raise ConfigError(f"--episodes = {args.episodes} must be in [1, 100000]")
+    if args.seed < 0:
+        raise ConfigError(f"--seed = {args.seed} must be >= 0")
+    if args.threads < 1:
+        raise ConfigError(f"--threads = {args.threads} must be >= 1")
+    if args.difficulty is not None and not 0 <= args.difficulty <= MAX_DIFFICULTY:
+        raise ConfigError(f"--difficulty = {args.difficulty} must be in [0, {MAX_DIFFICULTY}]")
+
+
 def to_config(schema: type[T], cfg: Any) -> T:
     """The composed Hydra config (or a plain dict) as a validated ``schema`` instance."""
     from omegaconf import OmegaConf

@@ -16,7 +16,7 @@ import json
 import sys
 from pathlib import Path
 
-from truckrl.cli import OneLineArgParser, run_or_fail
+from truckrl.cli import OneLineArgParser, check_scene_options, run_or_fail
 
 
 def parser() -> argparse.ArgumentParser:
@@ -33,16 +33,7 @@ def parser() -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> list[dict]:
     from truckrl.sim.validation import ConfigError
 
-    if not 1 <= args.episodes <= 100_000:
-        raise ConfigError(f"--episodes = {args.episodes} must be in [1, 100000]")
-    if args.seed < 0:
-        raise ConfigError(f"--seed = {args.seed} must be >= 0")
-    if args.threads < 1:
-        raise ConfigError(f"--threads = {args.threads} must be >= 1")
-    from truckrl.task import MAX_DIFFICULTY
-
-    if args.difficulty is not None and not 0 <= args.difficulty <= MAX_DIFFICULTY:
-        raise ConfigError(f"--difficulty = {args.difficulty} must be in [0, {MAX_DIFFICULTY}]")
+    check_scene_options(args)
 
     import torch
 

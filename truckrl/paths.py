@@ -18,7 +18,7 @@ import math
 import sys
 from pathlib import Path
 
-from truckrl.cli import OneLineArgParser, run_or_fail
+from truckrl.cli import OneLineArgParser, check_scene_options, run_or_fail
 
 OUTCOME_CHOICES = ("failed", "solved", "any")
 
@@ -47,16 +47,11 @@ def _check(args: argparse.Namespace) -> None:
     from truckrl.sim.scene import ROUTE_NAMES
     from truckrl.sim.validation import ConfigError
 
-    if not 1 <= args.episodes <= 100_000:
-        raise ConfigError(f"--episodes = {args.episodes} must be in [1, 100000]")
-    if args.seed < 0:
-        raise ConfigError(f"--seed = {args.seed} must be >= 0")
+    check_scene_options(args)
     if not 1 <= args.count <= 64:
         raise ConfigError(f"--count = {args.count} must be in [1, 64]")
     if args.every < 1:
         raise ConfigError(f"--every = {args.every} must be >= 1")
-    if args.threads < 1:
-        raise ConfigError(f"--threads = {args.threads} must be >= 1")
     if args.route is not None and args.route not in ROUTE_NAMES:
         allowed = ", ".join(repr(r) for r in ROUTE_NAMES)
         raise ConfigError(f"--route = {args.route!r} must be one of {allowed}")
