@@ -66,14 +66,13 @@ def _check(args: argparse.Namespace) -> None:
         raise ConfigError(f"--out = {args.out}: must end in .png")
 
 
-def outcome_names(results: dict) -> list[str]:
-    """Each episode's outcome name (success, collision, jackknife or timeout)."""
+def outcome_names(results: dict, episodes: list[int]) -> list[str]:
+    """The outcome name (success, collision, jackknife or timeout) of each of ``episodes``."""
     from truckrl.task import OUTCOMES
 
-    names = []
-    for i in range(len(results["success"])):
-        names.append(next((o.name for o in OUTCOMES if bool(results[o.flag][i])), "timeout"))
-    return names
+    return [
+        next((o.name for o in OUTCOMES if bool(results[o.flag][i])), "timeout") for i in episodes
+    ]
 
 
 def select(results: dict, route: str | None, turn: tuple[float, float] | None):
@@ -149,13 +148,11 @@ def run(args: argparse.Namespace) -> dict:
     print(f"drawn: scenes {scenes} ({args.outcome} by the first)")
     rows = []
     for label, res, start in zip(labels, runs, starts, strict=True):
-        names = outcome_names(res)
+        names = outcome_names(res, scenes)
         rows.append(
             [
-                draw_path(
-                    start[i], res["path"][i], label=f"{label} #{i}: {names[i]}", every=args.every
-                )
-                for i in scenes
+                draw_path(start[i], res["path"][i], label=f"{label} #{i}: {name}", every=args.every)
+                for i, name in zip(scenes, names, strict=True)
             ]
         )
     out = Path(args.out)
