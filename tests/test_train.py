@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 import torch
+import yaml
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from tests.conftest import ROOT, TINY_BATCH, TINY_TRAIN, compose_config, run_cli
@@ -212,14 +213,20 @@ def test_fine_tune_of_the_shipped_policy_names_its_beams(tmp_path):
 
 def test_train_env_changes_the_training_envs_only(tmp_path):
     """``train_env.tolerance.position=12``: the training envs run with 12 m at difficulty 0 (the
-    logged tolerance), while the checkpoint's ``env`` keeps the paper's 30 m for evaluation."""
+    logged tolerance), while the checkpoint's ``env`` keeps the paper's 30 m and the default scene
+    mix for evaluation."""
     train(f"total_frames={BATCH}", "train_env.tolerance.position=12", f"hydra.run.dir={tmp_path}")
     acc = EventAccumulator(str(tmp_path / "tb"))
     acc.Reload()
     assert acc.Scalars("curriculum/tolerance_position_m")[0].value == pytest.approx(12.0)
-    saved = load_checkpoint(tmp_path)["config"]
-    assert "train_env:\n  tolerance:\n    position: 12" in saved
-    assert "tolerance:\n    position: 30.0" in saved
+    saved = yaml.safe_load(load_checkpoint(tmp_path)["config"])
+    # the command line adds to the default's train_env (crossings only), it does not replace it
+    assert saved["train_env"] == {
+        "task": {"scene": {"crossing_prob": 1.0}},
+        "tolerance": {"position": 12},
+    }
+    assert saved["env"]["tolerance"]["position"] == 30.0
+    assert saved["env"]["task"]["scene"]["crossing_prob"] == 0.7
 
 
 @pytest.mark.parametrize(
