@@ -71,6 +71,9 @@ def test_every_task_is_a_group_option():
     for name in task_names():
         tc = to_config(TrainConfig, compose_config("train", f"task={name}"))
         assert tc.env.task.name == name
+        # experiment=demos trains on crossings only for the intersection task alone
+        crossings = {"task": {"scene": {"crossing_prob": 1.0}}}
+        assert tc.train_env == (crossings if name == "intersection" else {}), name
 
 
 def test_list_and_nested_overrides():
