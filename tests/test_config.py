@@ -47,7 +47,7 @@ def test_demos_experiment_is_fast_plus_its_values():
     )
     assert (demos.demos.episodes, fast.demos.episodes) == (600, 0)
     assert (demos.demos.bc_coeff, fast.demos.bc_coeff) == (1.0, 0.0)
-    assert (demos.model.max_std, fast.model.max_std) == (1.0, None)
+    assert (demos.model.max_std, fast.model.max_std) == (0.5, None)
     assert (demos.env.lidar.num_beams, fast.env.lidar.num_beams) == (32, 16)
     # training scenes are all crossings; the env that evaluates keeps the default mix
     assert demos.train_env == {"task": {"scene": {"crossing_prob": 1.0}}} and fast.train_env == {}
