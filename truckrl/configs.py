@@ -111,6 +111,12 @@ class DemosConfig:
     episodes: int = param(
         0, lo=0, hi=1_000_000, unit="scenes", doc="scenes the planner solves first (0: no demos)"
     )
+    source: str = param(
+        "planner",
+        choices=("planner", "driver"),
+        doc="who demonstrates: the CEM planner (any forward task) or the scripted turnaround "
+        "driver (task uturn, whose scenes the planner cannot solve; truckrl/agent/uturn_driver.py)",
+    )
     seed: int = param(
         99991, lo=0, hi=SEED_MAX, doc="their scene seed: one no evaluation uses (not 12345)"
     )

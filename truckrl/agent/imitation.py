@@ -181,6 +181,23 @@ def plan_demos(plan: dict[str, Any]) -> tuple[list[int], list[list[list[float]]]
     return [int(e["scene_index"]) for e in episodes], [e["actions"] for e in episodes]
 
 
+def _driven(env_cfg: EnvConfig, dc: Any) -> tuple[Tensor, TensorDict]:
+    """``dc.episodes`` road starts of seed ``dc.seed`` driven by the scripted turnaround
+    (:func:`truckrl.agent.uturn_driver.driven_demos`): ``(solved [E], samples [M])``."""
+    from truckrl.agent.planner import held_out_states
+    from truckrl.agent.uturn_driver import driven_demos
+    from truckrl.task import MAX_DIFFICULTY
+
+    if env_cfg.task.name != "uturn":
+        raise ValueError(
+            f"demos.source = driver drives task uturn only (env.task.name = {env_cfg.task.name})"
+        )
+    # from the top of the start curriculum every start is the road start, the driver's
+    states = held_out_states(env_cfg, dc.episodes, dc.seed, "cpu", difficulty=MAX_DIFFICULTY)
+    samples, solved = driven_demos(env_cfg, states, dc.difficulty)
+    return solved, samples
+
+
 def bootstrap(
     ac: ActorCritic,
     env_cfg: EnvConfig,
@@ -211,31 +228,39 @@ def bootstrap(
     from truckrl.agent.planner import PlannerConfig, held_out_states, plan_states
 
     t0 = time.perf_counter()
-    overrides = {"compile": dc.compile}
-    overrides |= {k: getattr(dc, k) for k in ("samples", "iterations") if getattr(dc, k)}
-    states = held_out_states(env_cfg, dc.episodes, dc.seed, device)
-    results, _, _ = plan_states(
-        env_cfg, states, dc.difficulty, PlannerConfig(**overrides), device, progress
-    )
+    if dc.source == "driver":
+        success, samples = _driven(env_cfg, dc)
+    else:
+        overrides = {"compile": dc.compile}
+        overrides |= {k: getattr(dc, k) for k in ("samples", "iterations") if getattr(dc, k)}
+        states = held_out_states(env_cfg, dc.episodes, dc.seed, device)
+        results, _, _ = plan_states(
+            env_cfg, states, dc.difficulty, PlannerConfig(**overrides), device, progress
+        )
+        success = results["success"]
     t_plan = time.perf_counter() - t0
-    ok = results["success"].nonzero().squeeze(-1)
+    ok = success.nonzero().squeeze(-1)
     if ok.numel() == 0:
         raise ValueError(
-            f"the planner solved none of {dc.episodes} scenes at difficulty {dc.difficulty:g}: "
-            "nothing to clone (lower demos.difficulty or raise demos.episodes)"
+            f"the {dc.source} solved none of {dc.episodes} scenes at difficulty "
+            f"{dc.difficulty:g}: nothing to clone (lower demos.difficulty or raise demos.episodes)"
         )
-    lengths = results["length"].long()
-    actions = [results["actions"][j, : int(lengths[j])].tolist() for j in ok.tolist()]
-    samples, kept = demonstrations(
-        env_cfg, states[ok.to(states.device)].cpu(), actions, dc.difficulty
-    )
+    if dc.source == "driver":
+        kept = int(ok.numel())
+    else:
+        lengths = results["length"].long()
+        actions = [results["actions"][j, : int(lengths[j])].tolist() for j in ok.tolist()]
+        samples, kept = demonstrations(
+            env_cfg, states[ok.to(states.device)].cpu(), actions, dc.difficulty
+        )
     losses = behaviour_clone(ac, samples.to(device), dc.epochs, dc.lr, dc.batch_size, seed=seed)
     set_action_std(ac, dc.std)
     summary = {
         "scenes": dc.episodes,
         "seed": dc.seed,
         "difficulty": dc.difficulty,
-        "planner_success_rate": results["success"].float().mean().item(),
+        "source": dc.source,
+        "planner_success_rate": success.float().mean().item(),
         "plans_kept": kept,
         "samples": int(samples.batch_size[0]),
         "epochs": dc.epochs,
