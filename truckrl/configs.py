@@ -101,8 +101,9 @@ RESUME_OVERRIDES = (
 
 @dataclass
 class DemosConfig:
-    """A start cloned from planner demonstrations, made by the run itself before PPO
-    (``truckrl/agent/imitation.py``; README, "Learning quality"). Skipped on resume.
+    """A start cloned from demonstrations (the CEM planner's, or for ``uturn`` the scripted
+    turnaround's), made by the run itself before PPO (``truckrl/agent/imitation.py``; README,
+    "Learning quality", "Reversing"). Skipped on resume.
 
     With ``bc_coeff > 0`` the demonstrations also stay in the PPO update as a cloning term whose
     weight decays to 0 over ``bc_frames`` (kept in ``<run dir>/demos.pt`` for a resume).

@@ -307,14 +307,15 @@ def cloning_samples(
 
 
 def clone_demonstrations(ac: Any, tc: Any, env: Any) -> tuple[dict, Any]:
-    """``demos.episodes`` planner solutions cloned into ``ac`` (:func:`imitation.bootstrap`);
-    returns its summary and the samples. A planner that solves nothing is a one-line
-    :class:`ConfigError`."""
+    """``demos.episodes`` planner (or scripted-driver) solutions cloned into ``ac``
+    (:func:`imitation.bootstrap`); returns its summary and the samples. A demonstrator that
+    solves nothing is a one-line :class:`ConfigError`."""
     from truckrl.agent.imitation import bootstrap
     from truckrl.sim.validation import ConfigError
 
     dc = tc.demos
-    log.info(f"demonstrations: planning {dc.episodes} scenes (seed {dc.seed}) at difficulty "
+    how = "planning" if dc.source == "planner" else "driving (scripted turnaround)"
+    log.info(f"demonstrations: {how} {dc.episodes} scenes (seed {dc.seed}) at difficulty "
              f"{dc.difficulty:g}, then behaviour cloning")  # fmt: skip
     last = [time.monotonic()]
 

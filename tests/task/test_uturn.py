@@ -37,6 +37,8 @@ def test_experiment_preset_composes():
     tc = to_config(TrainConfig, compose_config("train", "experiment=uturn"))
     assert tc.env.task.name == "uturn"
     assert tc.env.max_steps == 1000 and tc.ppo.gamma == 0.998
+    assert tc.env.task.observe_route  # P, T and the branch axis observed
+    assert tc.demos.episodes == 0  # no driven demonstrations (README, "Reversing")
     assert tc.collector.num_envs == 1024  # the fast layout underneath
 
 
@@ -389,3 +391,34 @@ def test_reached_latches_at_the_turning_point_depth():
     td = env.reset()
     s = env.get_state()
     assert torch.equal(td["observation"][:, -1], 0.5 * (s["pulled"] + s["reached"]))
+
+
+def test_observe_route_extras_by_hand():
+    """``env.task.observe_route``: 6 more features after the 3, P and T in the tractor frame
+    over the sensor scale, then the branch axis heading relative to the tractor (sin, cos).
+    Tractor at (10, 5) heading 90 deg: P = (10, 25) is 20 m ahead, T = (0, 5) 10 m to its left;
+    the branch axis points along -x, 90 deg left of the heading."""
+    from truckrl.task.config import SENSOR_SCALE
+
+    cfg = EnvConfig(task={"name": "uturn", "observe_route": True})
+    task = UTurnTask(cfg)
+    assert task.num_extras == 9 and task.num_features == NUM_FEATURES + 9
+    assert UTurnTask(EnvConfig(task=UTURN["task"])).num_extras == 3  # the default is unchanged
+    s = {
+        "pose": torch.tensor([[10.0, 5.0, math.pi / 2, 0.0]]),
+        "speed": torch.tensor([-1.0]),
+        "params": {"max_reverse_speed": torch.tensor([2.0])},
+        "pulled": torch.tensor([1.0]),
+        "pull_point": torch.tensor([[10.0, 25.0]]),
+        "turn_point": torch.tensor([[0.0, 5.0]]),
+        "turn_axis": torch.tensor([[-1.0, 0.0]]),
+    }
+    x = task.observation_extras(s)[0]
+    assert x.shape == (9,)
+    assert x[0].item() == pytest.approx(-0.5) and x[2].item() == 1.0
+    want = torch.tensor([20.0, 0.0, 0.0, 10.0]) / SENSOR_SCALE
+    assert torch.allclose(x[3:7], want, atol=1e-5)
+    assert torch.allclose(x[7:], torch.tensor([1.0, 0.0]), atol=1e-6)
+    env = TruckEnv(num_envs=3, config=cfg, seed=0)
+    check_env_specs(env, seed=1)
+    assert env.reset()["observation"].shape == (3, NUM_FEATURES + 9)

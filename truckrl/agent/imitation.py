@@ -15,6 +15,9 @@ start:
   with Adam, shuffled minibatches, a fixed seed; the critic and the log-std are left alone (the
   log-std is then set by the caller).
 
+The planner solves no ``uturn`` scene; there ``demos.source=driver`` records the scripted
+turnaround of :mod:`truckrl.agent.uturn_driver` instead (closed loop, successful episodes only).
+
 ``python -m truckrl.imitate`` wraps both and writes a training checkpoint that
 ``python -m truckrl.train resume=<dir>`` continues; :func:`bootstrap` does the whole chain (plan,
 replay, clone) inside ``python -m truckrl.train demos.episodes=N``.
@@ -206,8 +209,10 @@ def bootstrap(
     seed: int = 0,
     progress: Any = None,
 ) -> tuple[dict[str, Any], TensorDict]:
-    """Plan ``dc.episodes`` scenes of seed ``dc.seed``, clone the successful plans into ``ac``'s
-    actor and set its std: a training run's start (``train demos.episodes=N``).
+    """Plan ``dc.episodes`` scenes of seed ``dc.seed`` (``dc.source`` "planner"; "driver":
+    drive them with the scripted turnaround of :mod:`truckrl.agent.uturn_driver`), clone the
+    successful episodes into ``ac``'s actor and set its std: a training run's start
+    (``train demos.episodes=N``).
 
     Args:
         ac: the fresh actor-critic (changed in place: trunk and mean head, log-std).
@@ -217,11 +222,12 @@ def bootstrap(
         progress: ``progress(done, total)`` after every planner iteration, or None.
 
     Returns:
-        ``(summary, samples)``: a JSON-ready summary (scenes, planner success rate, plans kept,
-        samples, losses, seconds) and the ``[M]`` demonstration samples it cloned.
+        ``(summary, samples)``: a JSON-ready summary (scenes, source, the demonstrator's success
+        rate, episodes kept, samples, losses, seconds) and the ``[M]`` samples it cloned.
 
     Raises:
-        ValueError: no plan succeeded (nothing to clone).
+        ValueError: no episode succeeded (nothing to clone), or ``source`` "driver" with a task
+            other than ``uturn``.
     """
     import time
 

@@ -75,7 +75,7 @@ import torch
 from torch import Tensor
 
 from truckrl.sim.collision import truck_collides, widened
-from truckrl.sim.geometry import rotate, wrap_angle
+from truckrl.sim.geometry import rotate, to_local, wrap_angle
 from truckrl.sim.uturn_scene import (
     INFO_KEYS,
     START_ARC,
@@ -89,12 +89,14 @@ from truckrl.sim.uturn_scene import (
 from truckrl.sim.validation import param, validate
 from truckrl.sim.vehicle import truck_extents
 from truckrl.task.base import Task
-from truckrl.task.config import TaskConfig
+from truckrl.task.config import SENSOR_SCALE, TaskConfig
 from truckrl.task.intersection import IntersectionTask, pose_errors, pose_success
 from truckrl.task.schema import CategoryDim
 
 if TYPE_CHECKING:
     from tensordict import TensorDict
+
+    from truckrl.task.config import EnvConfig
 
 #: State key of the per-episode scene metadata ``{key: [N]}`` (:data:`INFO_KEYS`): the key every
 #: task records its scene metadata under (evaluation bins episodes by it, ``category_dims``).
@@ -203,6 +205,12 @@ class UTurnConfig(TaskConfig):
     scene: UTurnSceneConfig = field(default_factory=UTurnSceneConfig)
     reward: UTurnRewardConfig = field(default_factory=UTurnRewardConfig)
     start: UTurnStartConfig = field(default_factory=UTurnStartConfig)
+    observe_route: bool = param(
+        False,
+        doc="6 more observation features: the pull point P and the turning point T in the "
+        "tractor frame (/ sensor scale) and the branch axis direction (sin, cos) relative to "
+        "the tractor heading: where the manoeuvre goes, which 16 LiDAR beams show only coarsely",
+    )
 
     def __post_init__(self) -> None:
         validate(self, "env.task")
@@ -273,6 +281,11 @@ class UTurnTask(Task):
         "turn_axis",
         "reached",
     )
+
+    def __init__(self, cfg: EnvConfig) -> None:
+        super().__init__(cfg)
+        if self.cfg.task.observe_route:
+            self.num_extras = 9  # P and T (x, y each), branch axis (sin, cos)
 
     def sample(self, m: int, rng: torch.Generator, device: torch.device) -> TensorDict:
         from tensordict import TensorDict
@@ -484,10 +497,13 @@ class UTurnTask(Task):
         }
 
     def observation_extras(self, s: dict[str, Any]) -> Tensor:
-        """``[N, 3]``: signed speed / ``max_reverse_speed``; ``max_reverse_speed`` mapped from
+        """``[N, 3]`` (``[N, 9]`` with ``env.task.observe_route``): signed speed / ``max_reverse_speed``; ``max_reverse_speed`` mapped from
         ``env.vehicle.max_reverse_speed`` to [-1, 1] (0 for a range of one value); the phase,
         which the shaping rewards differently: ``pulled`` (1 once the truck has pulled far
-        enough past the branch) under ``route``, ``(pulled + reached) / 2`` under ``path``."""
+        enough past the branch) under ``route``, ``(pulled + reached) / 2`` under ``path``.
+        With ``observe_route``: then ``P`` and ``T`` in the tractor frame (x, y each, / the
+        sensor scale) and the sine and cosine of the branch axis heading minus the tractor
+        heading."""
         p = s["params"]
         v_rev = p["max_reverse_speed"]
         lo, hi = self.cfg.vehicle.max_reverse_speed
@@ -496,7 +512,15 @@ class UTurnTask(Task):
         phase = s["pulled"]
         if self.cfg.task.reward.shaping == "path":
             phase = 0.5 * (s["pulled"] + s["reached"])
-        return torch.stack((s["speed"] / v_rev, norm, phase), -1)
+        extras = torch.stack((s["speed"] / v_rev, norm, phase), -1)
+        if not self.cfg.task.observe_route:
+            return extras
+        pose = s["pose"]
+        theta = pose[:, 2]
+        points = torch.stack((s["pull_point"], s["turn_point"]), 1)  # [N, 2, 2]
+        local = to_local(points, pose[:, :2], theta) / SENSOR_SCALE
+        axis = torch.atan2(s["turn_axis"][:, 1], s["turn_axis"][:, 0]) - theta
+        return torch.cat((extras, local.flatten(1), axis.sin()[:, None], axis.cos()[:, None]), -1)
 
 
 def route_to_go(s: dict[str, Any]) -> Tensor:
