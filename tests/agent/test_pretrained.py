@@ -95,3 +95,19 @@ def test_the_shipped_dock_policy_loads_and_reverses_into_bays():
     # an untrained policy docks none of these (it never reaches a bay from the apron); the
     # shipped one about 60 % of unseen scenes at 0.15 m / 0.1 rad (README, "Reversing")
     assert int(results["success"].sum()) >= 3
+
+
+@pytest.mark.skipif(not (ckpt.PRETRAINED_DIR / "uturn.pt").is_file(), reason="not shipped")
+def test_the_shipped_uturn_policy_loads_and_turns_round():
+    from truckrl.agent.policy import load_policy
+    from truckrl.agent.rollout import evaluate_policy
+
+    policy = load_policy("pretrained:uturn")
+    assert policy.env_config.task.name == "uturn" and policy.env_config.task.observe_route
+    results, (tol_pos, _), _ = evaluate_policy(
+        policy.actor, policy.env_config, 4.0, episodes=8, seed=1
+    )
+    assert tol_pos == pytest.approx(30.0 / 16)  # difficulty 4: every start on the road
+    # an untrained policy turns none of these round (it needs a reverse leg); the shipped one
+    # MIN_UTURN of 8 (README, "Reversing")
+    assert int(results["success"].sum()) >= MIN_UTURN

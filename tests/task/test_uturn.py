@@ -422,3 +422,32 @@ def test_observe_route_extras_by_hand():
     env = TruckEnv(num_envs=3, config=cfg, seed=0)
     check_env_specs(env, seed=1)
     assert env.reset()["observation"].shape == (3, NUM_FEATURES + 9)
+
+
+def test_a_checkpoint_with_the_route_observed_loads(tmp_path):
+    """The observation size of a saved policy follows its config (``observe_route``: 26 + 9),
+    not the task class alone; the other setting is refused in one line."""
+    from dataclasses import asdict
+
+    import yaml
+
+    from truckrl.agent.checkpoint import CheckpointError, save_training_state
+    from truckrl.agent.curriculum import Curriculum
+    from truckrl.agent.network import make_actor_critic
+    from truckrl.agent.policy import load_policy
+    from truckrl.agent.ppo import PPO
+
+    for observe, path in ((True, tmp_path / "a.pt"), (False, tmp_path / "b.pt")):
+        tc = to_config(
+            TrainConfig, compose_config("train", "experiment=uturn", "env.compile=false")
+        )
+        ac = make_actor_critic(tc.model, NUM_FEATURES + 9, tc.env.lidar.num_beams)
+        tc.env.task.observe_route = observe
+        save_training_state(path, model=ac.model, ppo=PPO(ac, tc.ppo),
+                            curriculum=Curriculum(tc.curriculum),
+                            counters={"iteration": 1, "frames": 1, "wall_time_s": 1.0},
+                            config_yaml=yaml.safe_dump(asdict(tc)),
+                            num_obs=NUM_FEATURES + 9, num_beams=tc.env.lidar.num_beams)  # fmt: skip
+    assert load_policy(tmp_path / "a.pt").env_config.task.observe_route
+    with pytest.raises(CheckpointError, match="35 observation features but task 'uturn' observes 29"):
+        load_policy(tmp_path / "b.pt")

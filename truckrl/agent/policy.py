@@ -12,7 +12,7 @@ import yaml
 
 from truckrl.agent.checkpoint import CheckpointError, load_training_state, load_weights
 from truckrl.sim.validation import ConfigError, build
-from truckrl.task import NUM_FEATURES, EnvConfig, task_class
+from truckrl.task import EnvConfig, make_task
 
 
 @dataclass
@@ -61,8 +61,8 @@ def check_shapes(state: dict[str, Any], env_cfg: EnvConfig) -> None:
             f"env.lidar.num_beams = {env_cfg.lidar.num_beams}"
         )
     try:
-        expected = NUM_FEATURES + task_class(env_cfg.task.name).num_extras
-    except (ConfigError, KeyError, ImportError) as e:
+        expected = make_task(env_cfg).num_features  # the config decides some tasks' extras
+    except (ConfigError, KeyError, ImportError, TypeError) as e:
         raise CheckpointError(f"{path}: unknown task {env_cfg.task.name!r} ({e})") from None
     if state["num_obs"] != expected:
         raise CheckpointError(
