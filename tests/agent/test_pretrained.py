@@ -109,5 +109,5 @@ def test_the_shipped_uturn_policy_loads_and_turns_round():
     )
     assert tol_pos == pytest.approx(30.0 / 16)  # difficulty 4: every start on the road
     # an untrained policy turns none of these round (it needs a reverse leg); the shipped one
-    # most of them (README, "Reversing")
-    assert int(results["success"].sum()) >= 4
+    # 7 of 8 (82.2 % of 1,000 unseen scenes; README, "Reversing")
+    assert int(results["success"].sum()) >= 6
