@@ -449,5 +449,7 @@ def test_a_checkpoint_with_the_route_observed_loads(tmp_path):
                             config_yaml=yaml.safe_dump(asdict(tc)),
                             num_obs=NUM_FEATURES + 9, num_beams=tc.env.lidar.num_beams)  # fmt: skip
     assert load_policy(tmp_path / "a.pt").env_config.task.observe_route
-    with pytest.raises(CheckpointError, match="35 observation features but task 'uturn' observes 29"):
+    with pytest.raises(
+        CheckpointError, match="35 observation features but task 'uturn' observes 29"
+    ):
         load_policy(tmp_path / "b.pt")
