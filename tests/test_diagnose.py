@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from tests.sim.test_uturn_scene import FIXED_TRUCK
+from tests.agent.test_uturn_driver import FIXED_TRUCK
 from truckrl.agent.diagnosis import diagnose_uturn, summarize_diagnosis, trailer_depth
 from truckrl.diagnose import main
 from truckrl.sim.collision import touching
