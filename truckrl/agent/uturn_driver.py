@@ -30,6 +30,7 @@ from torch import Tensor
 from truckrl.agent.network import LIDAR_KEY, OBS_KEY
 from truckrl.env import TruckEnv
 from truckrl.sim.control import ControlConfig
+from truckrl.sim.geometry import wrap_angle
 from truckrl.task import EnvConfig
 
 #: The full grid of driver settings (lane_y, arc_radius, pass_margin, exit_look, exit_shift,
@@ -52,10 +53,6 @@ GRID: tuple[tuple[float, ...], ...] = tuple(
 DEMO_SETTINGS: tuple[tuple[float, ...], ...] = tuple(
     GRID[i] for i in (265, 251, 161, 217, 275, 266, 264, 276, 174)
 )
-
-
-def _wrap(x: Tensor) -> Tensor:
-    return torch.remainder(x + math.pi, 2 * math.pi) - math.pi
 
 
 class TurnaroundDriver:
@@ -142,7 +139,7 @@ class TurnaroundDriver:
         c, s = torch.cos(self.heading), torch.sin(self.heading)
         d = pose[:, :2] - self.origin
         x, y = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
-        th = _wrap(pose[:, 2] - self.heading)
+        th = wrap_angle(pose[:, 2] - self.heading)
         return torch.stack((x, self.side * y, self.side * th, self.side * pose[:, 3]), -1)
 
     def setpoints(self, s: Mapping[str, Any]) -> tuple[Tensor, Tensor]:
@@ -167,7 +164,7 @@ class TurnaroundDriver:
         d = self.path[torch.arange(len(j), device=j.device), j] - axle
         psi_d = torch.atan2(d[:, 1], d[:, 0]) + math.pi  # the trailer faces away from its motion
         lim = p["max_articulation"] - 0.4
-        phi_d = torch.maximum(torch.minimum(1.5 * _wrap(psi_d - psi), lim), -lim)
+        phi_d = torch.maximum(torch.minimum(1.5 * wrap_angle(psi_d - psi), lim), -lim)
         phi = q[:, 3]
         tan1 = l_t * (0.8 * (phi_d - phi) - torch.sin(phi) / l_ka) / (1 + a_k / l_ka * phi.cos())
         steer1 = torch.atan(tan1)
@@ -175,7 +172,7 @@ class TurnaroundDriver:
         shift = torch.where(q[:, 0] > self.goal[:, 0] + self.shift_until, self.exit_shift, 0.0)
         lane = self.goal[:, 1] - torch.sign(self.goal[:, 1]) * shift
         d = torch.stack((-self.exit_look, lane - q[:, 1]), -1)
-        alpha = _wrap(torch.atan2(d[:, 1], d[:, 0]) - q[:, 2])
+        alpha = wrap_angle(torch.atan2(d[:, 1], d[:, 0]) - q[:, 2])
         steer2 = torch.atan(2 * l_t * torch.sin(alpha) / d.norm(dim=-1))
         zero = torch.zeros_like(psi)
         speed = torch.stack((zero + self.v_fwd, zero - self.v_rev, zero + self.v_fwd, zero), -1)
