@@ -56,7 +56,9 @@
   away from ``T``) cost reward, and a policy trained that way drove to the mouth and stopped.
 * Observation extras (3): signed speed / ``max_reverse_speed`` (below -1 never, < 0 reversing),
   ``max_reverse_speed`` mapped from its configured range to [-1, 1], and the phase: ``pulled``
-  under ``route``, ``(pulled + reached) / 2`` under ``path``.
+  under ``route``, ``(pulled + reached) / 2`` under ``path``. With ``env.task.observe_route``
+  (9 extras; on in ``experiment=uturn``) also ``P`` and ``T`` in the tractor frame and the
+  branch axis direction relative to the tractor heading.
 * Start curriculum (``env.task.start``, :meth:`UTurnTask.on_reset`): at low difficulty the
   truck starts part-way through the manoeuvre, at its end first.
 * Scene metadata: ``state["route"]`` holds the generator's per-episode ``info``
