@@ -1,7 +1,8 @@
 """Shared test fixtures: one tiny checkpoint, Hydra composition, and the CLI runner.
 
 Subprocess tests of the real entry points are marked ``e2e`` (kept in the default suite); they
-pass ``env.compile=false`` because compiling the step costs ~20 s per process.
+pass ``env.compile=false`` and ``ppo.compile=false`` because compiling the step or the loss
+costs 15-20 s per process.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ TINY_TRAIN = [
     "log.video_interval=0",
     "log.progress_bar=false",
     "env.compile=false",
+    "ppo.compile=false",
     "demos.episodes=0",  # the default experiment=demos would plan 600 scenes first
     "demos.bc_coeff=0",  # ... and keep cloning them
 ]

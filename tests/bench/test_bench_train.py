@@ -14,6 +14,7 @@ TINY = [
     "ppo.num_minibatches=2",
     "ppo.num_epochs=1",
     "env.compile=false",
+    "ppo.compile=false",
 ]
 
 

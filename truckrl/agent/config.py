@@ -158,6 +158,12 @@ class PPOConfig:
         doc="critic loss: l2 (squared error), l1 or smooth_l1",
         source="RSL-RL",
     )
+    compile: bool = param(
+        False,
+        unit="-",
+        doc="torch.compile the minibatch loss, forward and backward (~15 s once per process; "
+        "~1/3 less update time on a CPU)",
+    )
 
     def __post_init__(self) -> None:
         validate(self, "ppo")

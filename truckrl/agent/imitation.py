@@ -107,7 +107,8 @@ def action_mse(ac: ActorCritic, batch: TensorDict) -> Tensor:
     ``batch`` is ``[B]`` with "observation", "lidar" and "action" (a :func:`demonstrations`
     slice); differentiable in the trunk and the mean head.
     """
-    loc = ac.actor(batch.select(OBS_KEY, LIDAR_KEY))["loc"]
+    # the trunk and the mean head only: no action is sampled (no random numbers spent)
+    loc = ac.actor.get_dist_params(batch.select(OBS_KEY, LIDAR_KEY))["loc"]
     return (loc - batch["action"]).square().mean()
 
 

@@ -77,6 +77,9 @@ def gaussian_kl(loc0: Tensor, scale0: Tensor, loc1: Tensor, scale1: Tensor) -> T
 #: Gaussian (for the ratio and the KL), and GAE's outputs.
 _UPDATE_KEYS = (OBS_KEY, LIDAR_KEY, "action", "action_log_prob", "loc", "scale")
 _UPDATE_KEYS += ("advantage", "value_target", "state_value")
+#: The loss entries :meth:`PPO.update` averages over its minibatches and returns.
+_LOSS_STATS = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx")
+_LOSS_STATS += ("clip_fraction",)
 
 
 class _ClipPPOLoss(ClipPPOLoss):
@@ -84,16 +87,31 @@ class _ClipPPOLoss(ClipPPOLoss):
 
     The adaptive learning rate needs KL(rollout policy || current policy) on each minibatch; taking
     the current Gaussian from the loss's own actor pass saves a second trunk forward per minibatch.
+
+    The entropy is the Gaussian's closed form, always: TorchRL's own choice is the same in eager
+    mode, but under ``torch.compile`` it also draws a Monte-Carlo estimate (to stand in for a
+    non-finite one), which would spend random numbers and so change the minibatch shuffles.
     """
 
     last_loc: Tensor | None = None
     last_scale: Tensor | None = None
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        # TorchRL keeps the value-clip radius as a 0-d tensor buffer and branches on its truth
+        # ("if self.clip_value:"), which breaks a compiled graph in two; a Python float (or None)
+        # is the same number and branches at trace time
+        clip = self._buffers.pop("clip_value", None)
+        self.clip_value = None if clip is None else float(clip)
 
     def _log_weight(self, tensordict, adv_shape):
         out = super()._log_weight(tensordict, adv_shape)
         dist = out[1]
         self.last_loc, self.last_scale = dist.mean.detach(), dist.stddev.detach()
         return out
+
+    def _get_entropy(self, dist, adv_shape):
+        return dist.entropy().unsqueeze(-1)  # IndependentNormal: [*B] -> [*B, 1]
 
 
 @contextlib.contextmanager
@@ -163,6 +181,16 @@ class PPO:
             loss_critic_type=cfg.loss_critic_type,
             normalize_advantage=False,
             clip_value=cfg.clip_epsilon if cfg.clip_value else None,
+            # the modules' own parameters (no target networks here): the same numbers without
+            # swapping a parameter copy into the modules on every call (~1 ms per minibatch)
+            functional=False,
+        )
+        # ppo.compile: one graph for the loss's forward and backward; the same minibatch size
+        # every step, so it compiles once (twice with the cloning term on and off)
+        self._objective = (
+            torch.compile(self._minibatch_objective, dynamic=False)
+            if cfg.compile
+            else self._minibatch_objective
         )
         # foreach: one kernel per op for all parameters instead of one per parameter (the CPU
         # default is the per-parameter loop); same arithmetic, bit for bit, ~20 % less step time
@@ -218,6 +246,33 @@ class PPO:
             batch["advantage"] = (adv - adv.mean()) / (adv.std() + 1e-8)
         return batch
 
+    def _minibatch_objective(
+        self, mb: TensorDictBase, demos: TensorDictBase | None, bc_coeff: Tensor
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:
+        """The loss of one minibatch step and what the update logs of it.
+
+        Args:
+            mb: ``[M]`` minibatch with the :data:`_UPDATE_KEYS`.
+            demos: ``[K]`` demonstration samples for the cloning term, or None.
+            bc_coeff: ``[]`` weight of the cloning term.
+
+        Returns:
+            ``(total [], stats [len(_LOSS_STATS)], kl [], bc [] or None)``: the differentiable
+            total loss, the loss's logged entries (detached, in :data:`_LOSS_STATS` order), the
+            analytic KL(rollout policy || current policy) averaged over the minibatch, and the
+            cloning term's action MSE before its weight.
+        """
+        out = self.loss(mb)
+        total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+        bc = None
+        if demos is not None:  # keep the demonstrated actions (demos.bc_coeff)
+            bc = action_mse(self.ac, demos)
+            total = total + bc_coeff * bc
+            bc = bc.detach()
+        stats = torch.stack([out[k].detach() for k in _LOSS_STATS])
+        kl = gaussian_kl(mb["loc"], mb["scale"], self.loss.last_loc, self.loss.last_scale).mean()
+        return total, stats, kl, bc
+
     def _values(self, td: TensorDictBase) -> Tensor:
         """Critic values ``[*B, 1]`` of the observations in ``td`` (``[*B]``), without grad."""
         return self.ac.critic(td.select(OBS_KEY, LIDAR_KEY))["state_value"]
@@ -252,12 +307,12 @@ class PPO:
             batch = self.compute_advantages(batch).reshape(-1).select(*_UPDATE_KEYS)
         n = batch.numel()
         mb_size = self.cfg.check_batch(n)
-        keys = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx")
-        keys += ("clip_fraction",)
-        sums = {k: torch.zeros((), device=batch.device) for k in (*keys, "kl", "grad_norm")}
+        stat_sums = torch.zeros(len(_LOSS_STATS), device=batch.device)
+        sums = {k: torch.zeros((), device=batch.device) for k in ("kl", "grad_norm")}
         demos = self.demos if self.bc_coeff > 0 and self.demos is not None else None
         if demos is not None:
             sums["loss_bc"] = torch.zeros((), device=batch.device)
+        bc_coeff = torch.tensor(self.bc_coeff, device=batch.device)
         params = list(self.ac.model.parameters())
         steps = 0
         for _ in range(self.cfg.num_epochs):
@@ -269,17 +324,13 @@ class PPO:
             for start in range(0, n, mb_size):
                 with _span(timings, "loss_forward", dev):
                     mb = shuffled[start : start + mb_size]
-                    out = self.loss(mb)
-                    total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
-                    if demos is not None:  # keep the demonstrated actions (demos.bc_coeff)
+                    picked = None
+                    if demos is not None:
                         pick = torch.randint(demos.numel(), (self.bc_batch,), device=demos.device)
-                        bc = action_mse(self.ac, demos[pick])
-                        total = total + self.bc_coeff * bc
-                        sums["loss_bc"] += bc.detach()
-                    # KL of this minibatch before the step, from the loss's own forward (RSL-RL
-                    # order: the new learning rate applies to this very step)
-                    loc, scale = self.loss.last_loc, self.loss.last_scale
-                    kl = gaussian_kl(mb["loc"], mb["scale"], loc, scale).mean()
+                        picked = demos[pick]
+                    # the KL of this minibatch before the step comes from the loss's own forward
+                    # (RSL-RL order: the new learning rate applies to this very step)
+                    total, stats, kl, bc = self._objective(mb, picked, bc_coeff)
                 with _span(timings, "optimizer", dev):
                     if self.schedule is not None:
                         self.set_lr(self.schedule.step(kl.item()))
@@ -291,13 +342,15 @@ class PPO:
                     self.optimizer.step()
                     self.ac.gaussian.project_()
                 with _span(timings, "metrics", dev):
-                    for k in keys:
-                        sums[k] += out[k].detach()
+                    stat_sums += stats
                     sums["kl"] += kl
                     sums["grad_norm"] += grad_norm.detach()
+                    if bc is not None:
+                        sums["loss_bc"] += bc
                 steps += 1
         with _span(timings, "metrics", dev):
-            metrics = {k: v.item() / steps for k, v in sums.items()}
+            metrics = dict(zip(_LOSS_STATS, (stat_sums / steps).tolist(), strict=True))
+            metrics.update({k: v.item() / steps for k, v in sums.items()})
             metrics["lr"] = self.lr
             std = self.ac.action_std().tolist()  # [A]: longitudinal, lateral
             metrics["action_std"] = sum(std) / len(std)

@@ -44,6 +44,7 @@ QUICK_OVERRIDES = (
     "collector.steps_per_env=32",
     "ppo.num_epochs=2",
     "env.compile=false",
+    "ppo.compile=false",
 )
 QUICK = {"iterations": 2, "warmup": 1}
 
@@ -215,7 +216,7 @@ def run(args: argparse.Namespace) -> dict:
     threads = torch.get_num_threads()
     print(
         f"bench train: {c.frames_per_batch:,} frames/iteration ({c.workers} x {c.num_envs} "
-        f"trucks x {c.steps_per_env} steps), env.compile={tc.env.compile}, "
+        f"trucks x {c.steps_per_env} steps), env.compile={tc.env.compile}, ppo.compile={tc.ppo.compile}, "
         f"{tc.ppo.num_epochs} epochs x {tc.ppo.num_minibatches} minibatches, "
         f"{threads} torch threads, {args.warmup} warm-up + {args.iterations} timed iterations",
         flush=True,
@@ -297,7 +298,7 @@ def run(args: argparse.Namespace) -> dict:
         median[k] = statistics.median(float(r[k]) for r in timed)
     columns = ["iteration", "frames/s", "total_s", *PARTS, "other_s"]
     table = print_table(
-        f"PPO training iteration ({threads} torch threads, env.compile={tc.env.compile})",
+        f"PPO training iteration ({threads} torch threads, env.compile={tc.env.compile}, ppo.compile={tc.ppo.compile})",
         [*timed, median],
         columns,
     )
@@ -319,6 +320,7 @@ def run(args: argparse.Namespace) -> dict:
         "num_envs": c.num_envs,
         "steps_per_env": c.steps_per_env,
         "env_compile": tc.env.compile,
+        "ppo_compile": tc.ppo.compile,
         "num_epochs": tc.ppo.num_epochs,
         "num_minibatches": tc.ppo.num_minibatches,
         "bc_coeff": tc.demos.bc_coeff,
