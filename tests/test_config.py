@@ -36,6 +36,26 @@ def test_gpu_experiment_asks_for_cuda_and_refuses_a_machine_without_it():
             to_config(TrainConfig, cfg)
 
 
+def test_compile_options_without_a_cpp_compiler_stop_before_work(monkeypatch, tmp_path):
+    """torch.compile on the CPU builds its kernels with $CXX (g++): without one the run stops at
+    the config with one line naming the options that are on, not minutes later in inductor."""
+    cfg = compose_config("train")  # the default run: env, loss and planner all compiled
+    assert to_config(TrainConfig, cfg).ppo.compile
+    monkeypatch.setenv("PATH", str(tmp_path))  # an empty folder: no compiler on the PATH
+    monkeypatch.setenv("CXX", "g++")
+    with pytest.raises(ConfigError) as err:
+        to_config(TrainConfig, cfg)
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert msg.startswith("env.compile = true and ppo.compile = true and demos.compile = true")
+    assert msg.endswith("env.compile=false ppo.compile=false demos.compile=false")
+    off = compose_config("train", "env.compile=false", "ppo.compile=false", "demos.episodes=0")
+    assert not to_config(TrainConfig, off).ppo.compile  # eager: no compiler needed
+    monkeypatch.setenv("CXX", "sh")  # any $CXX on the PATH is taken as the compiler
+    monkeypatch.setenv("PATH", "/bin:/usr/bin")
+    assert to_config(TrainConfig, cfg).env.compile
+
+
 def test_demos_experiment_is_fast_plus_its_values():
     fast = to_config(TrainConfig, compose_config("train", "experiment=fast"))
     demos = to_config(TrainConfig, compose_config("train", "experiment=demos"))

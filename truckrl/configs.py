@@ -207,6 +207,12 @@ class TrainConfig:
     def __post_init__(self) -> None:
         validate(self)
         check_device("device", self.device)
+        planner_compile = self.demos.compile and self.demos.episodes > 0 and self.init is None
+        check_compiler(
+            self.device,
+            **{"env.compile": self.env.compile, "ppo.compile": self.ppo.compile},
+            **{"demos.compile": planner_compile and self.demos.source == "planner"},
+        )
         from truckrl.task.config import with_env_overrides
 
         with_env_overrides(self.env, self.train_env, fixed=True, where="train_env")
@@ -314,6 +320,31 @@ def check_device(name: str, device: str) -> None:
             f"{name} = {device!r} but torch sees no CUDA GPU here (torch.cuda.is_available() is "
             f"False): use {name}=cpu"
         )
+
+
+def check_compiler(device: str, **options: bool) -> None:
+    """Raise :class:`ConfigError` when a ``torch.compile`` option is on for a CPU run and the C++
+    compiler that torch.compile's CPU backend (inductor) builds its kernels with is missing.
+
+    ``options`` maps dotted field names to their values. Inductor runs ``$CXX`` (default ``g++``,
+    ``clang++`` on macOS); without it the first compiled call fails deep inside torch with a
+    long traceback, minutes into a run, so this checks before any work starts.
+    """
+    import os
+    import shutil
+
+    on = [name for name, value in options.items() if value]
+    if not on or not str(device).startswith("cpu"):
+        return
+    cxx = os.environ.get("CXX", "clang++" if sys.platform == "darwin" else "g++")
+    if shutil.which(cxx):
+        return
+    fields = " and ".join(f"{name} = true" for name in on)
+    off = " ".join(f"{name}=false" for name in on)
+    raise ConfigError(
+        f"{fields} need a C++ compiler ({cxx}) for torch.compile on the CPU, and none is on the "
+        f"PATH: install one (apt-get install g++) or run eagerly with {off}"
+    )
 
 
 def structured(cls: type) -> Any:
