@@ -162,7 +162,7 @@ class PPOConfig:
         False,
         unit="-",
         doc="torch.compile the minibatch loss, forward and backward (~15 s once per process; "
-        "~1/3 less update time on a CPU)",
+        "about half the update time on 2 CPU cores)",
     )
 
     def __post_init__(self) -> None:
