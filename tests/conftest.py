@@ -1,8 +1,8 @@
 """Shared test fixtures: one tiny checkpoint, Hydra composition, and the CLI runner.
 
 Subprocess tests of the real entry points are marked ``e2e`` (kept in the default suite); they
-pass ``env.compile=false`` and ``ppo.compile=false`` because compiling the step or the loss
-costs 15-20 s per process.
+pass ``env.compile=false``, ``ppo.compile=false`` and ``collector.compile_policy=false``
+because compiling the step, the loss or the rollout policy costs 5-20 s per process.
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ TINY_TRAIN = [
     "log.progress_bar=false",
     "env.compile=false",
     "ppo.compile=false",
+    "collector.compile_policy=false",
     "demos.episodes=0",  # the default experiment=demos would plan 600 scenes first
     "demos.bc_coeff=0",  # ... and keep cloning them
 ]

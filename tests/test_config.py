@@ -39,7 +39,7 @@ def test_gpu_experiment_asks_for_cuda_and_refuses_a_machine_without_it():
 def test_compile_options_without_a_cpp_compiler_stop_before_work(monkeypatch, tmp_path):
     """torch.compile on the CPU builds its kernels with $CXX (g++): without one the run stops at
     the config with one line naming the options that are on, not minutes later in inductor."""
-    cfg = compose_config("train")  # the default run: env, loss and planner all compiled
+    cfg = compose_config("train")  # the default run: env, loss, policy and planner compiled
     assert to_config(TrainConfig, cfg).ppo.compile
     monkeypatch.setenv("PATH", str(tmp_path))  # an empty folder: no compiler on the PATH
     monkeypatch.setenv("CXX", "g++")
@@ -47,9 +47,11 @@ def test_compile_options_without_a_cpp_compiler_stop_before_work(monkeypatch, tm
         to_config(TrainConfig, cfg)
     msg = str(err.value)
     assert "\n" not in msg
-    assert msg.startswith("env.compile = true and ppo.compile = true and demos.compile = true")
-    assert msg.endswith("env.compile=false ppo.compile=false demos.compile=false")
-    off = compose_config("train", "env.compile=false", "ppo.compile=false", "demos.episodes=0")
+    on = "env.compile = true and ppo.compile = true and collector.compile_policy = true"
+    assert msg.startswith(on + " and demos.compile = true need a C++ compiler (g++)")
+    eager = "env.compile=false ppo.compile=false collector.compile_policy=false"
+    assert msg.endswith(eager + " demos.compile=false")
+    off = compose_config("train", *eager.split(), "demos.episodes=0")
     assert not to_config(TrainConfig, off).ppo.compile  # eager: no compiler needed
     monkeypatch.setenv("CXX", "sh")  # any $CXX on the PATH is taken as the compiler
     monkeypatch.setenv("PATH", "/bin:/usr/bin")

@@ -37,6 +37,11 @@ class CollectorConfig:
     steps_per_env: int = param(
         512, lo=1, hi=1_000_000, unit="steps", doc="steps per truck per iteration", source="paper"
     )
+    compile_policy: bool = param(
+        False,
+        doc="torch.compile the rollout policy the collector calls every step (network, action "
+        "sample, log-prob; ~5 s once per process; ~2.5x faster calls at 1,024 trucks on 2 cores)",
+    )
 
     @property
     def frames_per_batch(self) -> int:
@@ -211,6 +216,7 @@ class TrainConfig:
         check_compiler(
             self.device,
             **{"env.compile": self.env.compile, "ppo.compile": self.ppo.compile},
+            **{"collector.compile_policy": self.collector.compile_policy},
             **{"demos.compile": planner_compile and self.demos.source == "planner"},
         )
         from truckrl.task.config import with_env_overrides

@@ -58,11 +58,15 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     """
     # Heavy imports here, not at module level: `--help` and config errors answer before they load
     import yaml
-    from torchrl.collectors import Collector
 
     from truckrl.agent import checkpoint as ckpt
     from truckrl.agent.cohorts import StartOrderFeed
-    from truckrl.agent.collection import check_difficulty, make_env, set_difficulty
+    from truckrl.agent.collection import (
+        check_difficulty,
+        make_collector,
+        make_env,
+        set_difficulty,
+    )
     from truckrl.agent.curriculum import Curriculum
     from truckrl.agent.heldout import heldout_due, heldout_scalars
     from truckrl.agent.metrics import EpisodeTracker, hparam_metrics, iteration_scalars
@@ -128,13 +132,8 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     tolerance = set_difficulty(env, curriculum.difficulty)
 
     # Create collector
-    collector = Collector(
-        env,
-        ac.rollout_policy,  # actor + value head: GAE reuses the collected values
-        frames_per_batch=tc.collector.frames_per_batch,
-        total_frames=-1,
-        device=tc.device,
-        auto_register_policy_transforms=False,  # the policy is stateless: no InitTracker needed
+    collector = make_collector(
+        env, ac, tc.collector.frames_per_batch, tc.collector.compile_policy, tc.device
     )
 
     # Create logger (a continued run drops what the killed run logged after its checkpoint)

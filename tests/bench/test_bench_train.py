@@ -15,6 +15,7 @@ TINY = [
     "ppo.num_epochs=1",
     "env.compile=false",
     "ppo.compile=false",
+    "collector.compile_policy=false",
 ]
 
 

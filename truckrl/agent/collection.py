@@ -1,5 +1,5 @@
-"""Environments for data collection: seeding per worker, in-process or ParallelEnv, and the
-curriculum difficulty sent to every worker."""
+"""Data collection: environments (seeding per worker, in-process or ParallelEnv, the curriculum
+difficulty sent to every worker) and the ``Collector`` that steps them with the rollout policy."""
 
 from __future__ import annotations
 
@@ -8,8 +8,12 @@ import math
 
 import numpy as np
 import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.collectors import Collector
 from torchrl.envs import EnvBase, ParallelEnv
 
+from truckrl.agent.network import LIDAR_KEY, OBS_KEY, ROLLOUT_KEYS, ActorCritic
 from truckrl.env import TruckEnv
 from truckrl.task import EnvConfig
 
@@ -52,3 +56,56 @@ def check_difficulty(batch, difficulty: float) -> None:
     reached = batch["next", "difficulty"][..., -1, :]
     if not torch.isclose(reached, torch.full_like(reached, difficulty)).all():
         raise RuntimeError(f"difficulty {difficulty} did not reach every environment worker")
+
+
+class CompiledRollout(TensorDictModuleBase):
+    """:attr:`ActorCritic.rollout_policy <truckrl.agent.network.ActorCritic.rollout_policy>`
+    under ``torch.compile`` (``collector.compile_policy``): the trunk, both heads, the Gaussian
+    sample and its log-prob in one graph.
+
+    Forward: a ``[*B]`` tensordict with "observation" ``[*B, num_obs]`` and "lidar" ``[*B, R]``
+    (the collector's carrier, any other entries included) -> the same tensordict with
+    :data:`~truckrl.agent.network.ROLLOUT_KEYS` written, as the eager policy writes them.
+
+    Only the two observation entries enter the compiled call (the carrier's other entries would
+    each add guards). ``fallback_random``: the action noise comes from torch's own generator, as
+    in the eager policy, so a seeded run draws the same actions either way (equal to float
+    rounding; ``tests/agent/test_collection.py``). The parameters are the eager policy's own
+    objects: the optimiser's steps reach the compiled calls without copying weights.
+    """
+
+    def __init__(self, policy: TensorDictModuleBase) -> None:
+        super().__init__()
+        self.in_keys = [OBS_KEY, LIDAR_KEY]
+        self.out_keys = list(ROLLOUT_KEYS)
+        self.policy = policy
+        # kept out of the module tree: its parameters are self.policy's, registered once
+        self.__dict__["_compiled"] = torch.compile(
+            policy, dynamic=False, options={"fallback_random": True}
+        )
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        out = self._compiled(tensordict.select(*self.in_keys))
+        return tensordict.update(out.select(*self.out_keys))
+
+
+def make_collector(
+    env: EnvBase,
+    ac: ActorCritic,
+    frames_per_batch: int,
+    compile_policy: bool = False,
+    device: str | torch.device = "cpu",
+) -> Collector:
+    """The training ``Collector``: ``env`` stepped with the actor-critic's rollout policy (actor
+    and value head: GAE reuses the collected values), :class:`CompiledRollout` with
+    ``compile_policy``; ``frames_per_batch`` frames per batch, without end.
+    """
+    policy = CompiledRollout(ac.rollout_policy) if compile_policy else ac.rollout_policy
+    return Collector(
+        env,
+        policy,
+        frames_per_batch=frames_per_batch,
+        total_frames=-1,
+        device=device,
+        auto_register_policy_transforms=False,  # the policy is stateless: no InitTracker needed
+    )

@@ -135,6 +135,15 @@ def _span(timings: dict[str, float] | None, key: str, device: torch.device) -> I
 UPDATE_SPANS = ("gae", "loss_forward", "backward", "optimizer", "metrics")
 
 
+def _take_rows(td: TensorDictBase, index: Tensor) -> TensorDictBase:
+    """``td[index]`` for a 1-D long ``index`` ``[K]`` into dim 0 of a ``[N]`` tensordict.
+
+    One ``index_select`` per entry: the same rows as advanced indexing (``td[index]``), which
+    took ~5x longer on a CPU for 65,536 rows of 32 floats.
+    """
+    return td.apply(lambda t: t.index_select(0, index), batch_size=index.shape)
+
+
 def _continues(batch: TensorDictBase, nxt: TensorDictBase, ends: Tensor) -> bool:
     """Whether each step's next observation is the following step's observation, except at ``ends``.
 
@@ -320,14 +329,14 @@ class PPO:
             with _span(timings, "loss_forward", dev):
                 # one gather per epoch, then contiguous minibatch views: the same rows as
                 # indexing per minibatch, with one indexing call per key instead of one per step
-                shuffled = batch[perm]
+                shuffled = _take_rows(batch, perm)
             for start in range(0, n, mb_size):
                 with _span(timings, "loss_forward", dev):
                     mb = shuffled[start : start + mb_size]
                     picked = None
                     if demos is not None:
                         pick = torch.randint(demos.numel(), (self.bc_batch,), device=demos.device)
-                        picked = demos[pick]
+                        picked = _take_rows(demos, pick)
                     # the KL of this minibatch before the step comes from the loss's own forward
                     # (RSL-RL order: the new learning rate applies to this very step)
                     total, stats, kl, bc = self._objective(mb, picked, bc_coeff)

@@ -72,7 +72,7 @@ class Progress:
     ) -> None:
         self.total_frames, self.max_minutes = total_frames, max_minutes
         self.stop_difficulty = stop_difficulty
-        first = "first batch and update (torch.compile first with env.compile / ppo.compile)"
+        first = "first batch and update (torch.compile first with env / policy / ppo compile)"
         self.bar = tqdm(total=1000, dynamic_ncols=True, disable=not enabled, file=sys.stderr,
                         bar_format=f"starting |{{bar}}| {first}")  # fmt: skip
 

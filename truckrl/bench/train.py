@@ -45,6 +45,7 @@ QUICK_OVERRIDES = (
     "ppo.num_epochs=2",
     "env.compile=false",
     "ppo.compile=false",
+    "collector.compile_policy=false",
 )
 QUICK = {"iterations": 2, "warmup": 1}
 
@@ -173,6 +174,14 @@ def _top_ops(prof: Any, rows: int) -> list[dict[str, Any]]:
     ]
 
 
+def _compiles(tc: Any) -> str:
+    """The three compile switches of a train config, for the headers."""
+    return (
+        f"env.compile={tc.env.compile}, ppo.compile={tc.ppo.compile}, "
+        f"collector.compile_policy={tc.collector.compile_policy}"
+    )
+
+
 def _sync(device: torch.device) -> None:
     if device.type == "cuda":
         torch.cuda.synchronize(device)
@@ -183,10 +192,14 @@ def run(args: argparse.Namespace) -> dict:
     t_start = time.perf_counter()
     if args.threads:
         torch.set_num_threads(args.threads)
-    from torchrl.collectors import Collector
 
     from truckrl.agent.cohorts import StartOrderFeed
-    from truckrl.agent.collection import check_difficulty, make_env, set_difficulty
+    from truckrl.agent.collection import (
+        check_difficulty,
+        make_collector,
+        make_env,
+        set_difficulty,
+    )
     from truckrl.agent.curriculum import Curriculum
     from truckrl.agent.metrics import EpisodeTracker, iteration_scalars
     from truckrl.agent.network import LIDAR_KEY, OBS_KEY, make_actor_critic
@@ -207,17 +220,13 @@ def run(args: argparse.Namespace) -> dict:
     ppo = PPO(ac, tc.ppo)
     curriculum = Curriculum(tc.curriculum)
     tolerance = set_difficulty(env, curriculum.difficulty)
-    collector = Collector(
-        env, ac.rollout_policy, frames_per_batch=c.frames_per_batch, total_frames=-1,
-        device=tc.device,
-        auto_register_policy_transforms=False,
-    )  # fmt: skip
+    collector = make_collector(env, ac, c.frames_per_batch, c.compile_policy, tc.device)
     tracker = EpisodeTracker(task.reward_keys, task.error_quantities)
     feed = StartOrderFeed()
     threads = torch.get_num_threads()
     print(
         f"bench train: {c.frames_per_batch:,} frames/iteration ({c.workers} x {c.num_envs} "
-        f"trucks x {c.steps_per_env} steps), env.compile={tc.env.compile}, ppo.compile={tc.ppo.compile}, "
+        f"trucks x {c.steps_per_env} steps), {_compiles(tc)}, "
         f"{tc.ppo.num_epochs} epochs x {tc.ppo.num_minibatches} minibatches, "
         f"{threads} torch threads, {args.warmup} warm-up + {args.iterations} timed iterations",
         flush=True,
@@ -299,7 +308,7 @@ def run(args: argparse.Namespace) -> dict:
         median[k] = statistics.median(float(r[k]) for r in timed)
     columns = ["iteration", "frames/s", "total_s", *PARTS, "other_s"]
     table = print_table(
-        f"PPO training iteration ({threads} torch threads, env.compile={tc.env.compile}, ppo.compile={tc.ppo.compile})",
+        f"PPO training iteration ({threads} torch threads, {_compiles(tc)})",
         [*timed, median],
         columns,
     )
@@ -322,6 +331,7 @@ def run(args: argparse.Namespace) -> dict:
         "steps_per_env": c.steps_per_env,
         "env_compile": tc.env.compile,
         "ppo_compile": tc.ppo.compile,
+        "compile_policy": c.compile_policy,
         "num_epochs": tc.ppo.num_epochs,
         "num_minibatches": tc.ppo.num_minibatches,
         "bc_coeff": tc.demos.bc_coeff,
