@@ -13,7 +13,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.collectors import Collector
 from torchrl.envs import EnvBase, ParallelEnv
 
-from truckrl.agent.network import LIDAR_KEY, OBS_KEY, ROLLOUT_KEYS, ActorCritic
+from truckrl.agent.network import ActorCritic
 from truckrl.env import TruckEnv
 from truckrl.task import EnvConfig
 
@@ -63,11 +63,12 @@ class CompiledRollout(TensorDictModuleBase):
     under ``torch.compile`` (``collector.compile_policy``): the trunk, both heads, the Gaussian
     sample and its log-prob in one graph.
 
-    Forward: a ``[*B]`` tensordict with "observation" ``[*B, num_obs]`` and "lidar" ``[*B, R]``
-    (the collector's carrier, any other entries included) -> the same tensordict with
-    :data:`~truckrl.agent.network.ROLLOUT_KEYS` written, as the eager policy writes them.
+    Forward: a ``[*B]`` tensordict with the policy's in_keys, "observation" ``[*B, num_obs]`` and
+    "lidar" ``[*B, R]`` (the collector's carrier, any other entries included) -> the same
+    tensordict with :data:`~truckrl.agent.network.ROLLOUT_KEYS` written, as the eager policy
+    writes them.
 
-    Only the two observation entries enter the compiled call (the carrier's other entries would
+    Only the policy's in_keys enter the compiled call (the carrier's other entries would
     each add guards). ``fallback_random``: the action noise comes from torch's own generator, as
     in the eager policy, so a seeded run draws the same actions either way (equal to float
     rounding; ``tests/agent/test_collection.py``). The parameters are the eager policy's own
@@ -76,8 +77,8 @@ class CompiledRollout(TensorDictModuleBase):
 
     def __init__(self, policy: TensorDictModuleBase) -> None:
         super().__init__()
-        self.in_keys = [OBS_KEY, LIDAR_KEY]
-        self.out_keys = list(ROLLOUT_KEYS)
+        self.in_keys = list(policy.in_keys)  # observation and lidar
+        self.out_keys = list(policy.out_keys)  # ROLLOUT_KEYS
         self.policy = policy
         # kept out of the module tree: its parameters are self.policy's, registered once
         self.__dict__["_compiled"] = torch.compile(
