@@ -58,10 +58,11 @@ def test_compiled_rollout_policy_writes_what_the_eager_one_writes(exploration):
         torch.testing.assert_close(other, out_compiled["loc"])
 
 
-def test_make_collector_batches_carry_the_rollout_entries():
+@pytest.mark.parametrize("compile_policy", [False, True])
+def test_make_collector_batches_carry_the_rollout_entries(compile_policy):
     ac = make_actor_critic(ModelConfig(), num_obs=26, num_beams=16)
     env = make_env(EnvConfig(compile=False, max_steps=20), 1, 4, seed=0)
-    collector = make_collector(env, ac, frames_per_batch=32)
+    collector = make_collector(env, ac, frames_per_batch=32, compile_policy=compile_policy)
     try:
         batch = next(iter(collector))
     finally:
