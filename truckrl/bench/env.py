@@ -139,6 +139,11 @@ def check_args(args: argparse.Namespace) -> None:
 def _make_env(
     n: int, compile: bool, device: str, seed: int, overrides: dict | None = None
 ) -> TruckEnv:
+    if compile:
+        # Every env of a new size or config compiles new graphs of the same functions (step,
+        # observation): without a reset, dynamo stops compiling them after
+        # torch._dynamo.config.recompile_limit (8) graphs and runs the later rows eagerly.
+        torch._dynamo.reset()
     config = {"compile": compile, **(overrides or {})}
     return TruckEnv(num_envs=n, device=device, config=config, seed=seed)
 
@@ -301,12 +306,7 @@ def run_scaling(args: argparse.Namespace) -> dict:
     rows = []
 
     def measure(axis: str, value: int, n: int, compiled: bool, overrides: dict | None) -> None:
-        if compiled:
-            # Every config is a new graph of the same functions: without a reset, dynamo stops
-            # compiling them after torch._dynamo.config.cache_size_limit (8) graphs and runs
-            # the later rows eagerly.
-            torch._dynamo.reset()
-        env = _make_env(n, compiled, args.device, args.seed, overrides)
+        env = _make_env(n, compiled, args.device, args.seed, overrides)  # fresh graphs
         steps = _scaled_steps(args, n)
         sps, warm = steps_per_second(env, steps, min(args.warmup, steps))
         mask = env.get_state()["mask"]
@@ -379,9 +379,7 @@ def run_peers(args: argparse.Namespace) -> dict:
     rows.append({"simulator": "VMAS 1.5 (kinematic bicycle)", "compile": False, "trucks": n, **vm})
     print(f"  VMAS      N={n:<6d} {vm['steps/s']:12,.0f} steps/s", flush=True)
     for compiled in sorted(_modes(args)):
-        if compiled:
-            torch._dynamo.reset()  # a fresh graph, as in the --scaling rows
-        env = _make_env(n, compiled, args.device, args.seed)
+        env = _make_env(n, compiled, args.device, args.seed)  # fresh graphs
         sps, warm = steps_per_second(env, steps, warmup)
         rows.append(
             {"simulator": "TruckEnv", "compile": compiled, "trucks": n, "steps/s": sps,
