@@ -277,8 +277,9 @@ class TruckEnv(EnvBase):
         taken_obs = None if pool_obs is None else {key: v[:m] for key, v in pool_obs.items()}
         return {key: v[:m] for key, v in pool.items()}, taken_obs
 
-    def _flat_rows(self, leaves: dict[str | tuple[str, ...], torch.Tensor]) -> dict[str, Any]:
-        """State leaves ``{leaf key: [m, ...]}`` as the flat state the task functions read."""
+    def _flat_rows(self, leaves: Any) -> dict[str, Any]:
+        """State leaves (``{leaf key: [m, ...]}`` or a state TensorDict) as the flat state the
+        task functions read: plain tensors, ``params`` as a dict."""
         flat: dict[str, Any] = {k: leaves[k] for k in self._state_keys}
         flat["params"] = {k: leaves["params", k] for k in self._param_keys}
         return flat
@@ -297,9 +298,7 @@ class TruckEnv(EnvBase):
 
         For all rows, ``segments`` and ``mask`` are the compacted scene of :meth:`_compact_scene`.
         """
-        s = self._state if index is None else self._state[index]
-        flat = {k: s[k] for k in self._state_keys}
-        flat["params"] = {k: s["params", k] for k in self._param_keys}
+        flat = self._flat_rows(self._state if index is None else self._state[index])
         if index is None and self._scene is not None:
             flat["segments"], flat["mask"] = self._scene
         return flat
@@ -441,15 +440,11 @@ class TruckEnv(EnvBase):
                 if key in obs:  # copy: the old tensor is also the transition's "next" entry
                     new = value.clone()
                     new.index_put_((idx,), obs[key])
-                elif key in self._reset_zero_keys:
-                    new = (
-                        torch.zeros_like(value)
-                        if every
-                        else value.masked_fill(ended.view(-1, *(1,) * (value.ndim - 1)), 0)
-                    )
-                elif every or not isinstance(value, torch.Tensor):
-                    continue
-                else:
+                elif isinstance(value, torch.Tensor) and (
+                    key in self._reset_zero_keys or not every
+                ):
                     new = value.masked_fill(ended.view(-1, *(1,) * (value.ndim - 1)), 0)
+                else:  # every truck restarts: TorchRL keeps the other root entries as they are
+                    continue
                 root.set(key, new)
         return tensordict, root
