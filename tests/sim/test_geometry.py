@@ -14,7 +14,9 @@ from truckrl.sim.geometry import (
     rectangle_segments,
     segment_segment_distance,
     segments_intersect,
+    segments_to_local,
     to_local,
+    unit_vectors,
     wrap_angle,
 )
 
@@ -266,6 +268,35 @@ def test_to_local_hand_case():
     pts = torch.tensor([[[1.0, 3.0]]])
     local = to_local(pts, torch.tensor([[1.0, 1.0]]), torch.tensor([math.pi / 2]))
     torch.testing.assert_close(local, torch.tensor([[[2.0, 0.0]]]))  # 2 m straight ahead
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_segments_to_local_is_to_local_of_the_ends_bit_for_bit(dtype):
+    # the LiDAR and the body clips rotate segments with segments_to_local; its coordinates must
+    # be the very bits to_local gives for the same ends (the golden rollout depends on it)
+    g = torch.Generator().manual_seed(5)
+    segs = ((torch.rand(3, 40, 4, generator=g, dtype=torch.float64) - 0.5) * 400).to(dtype)
+    origin = ((torch.rand(3, 2, generator=g, dtype=torch.float64) - 0.5) * 400).to(dtype)
+    heading = ((torch.rand(3, generator=g, dtype=torch.float64) - 0.5) * 20).to(dtype)
+    x0, y0, x1, y1 = segments_to_local(segs, origin, heading)
+    ends = to_local(segs.unflatten(-1, (2, 2)).flatten(-3, -2), origin, heading)  # [3, 80, 2]
+    assert x0.shape == (3, 40) and x0.dtype == dtype
+    assert torch.equal(torch.stack((x0, y0), -1), ends[:, 0::2])
+    assert torch.equal(torch.stack((x1, y1), -1), ends[:, 1::2])
+    # hand case: a segment 2 m ahead of a truck at (1, 1) facing +y, running to its left
+    got = segments_to_local(
+        torch.tensor([[[1.0, 3.0, -1.0, 3.0]]]),
+        torch.tensor([[1.0, 1.0]]),
+        torch.tensor([math.pi / 2]),
+    )
+    torch.testing.assert_close(torch.cat(got, -1), torch.tensor([[2.0, 0.0, 2.0, 2.0]]))
+
+
+def test_unit_vectors_are_the_exact_cosines_and_sines():
+    a = torch.linspace(-7.0, 7.0, 1001)
+    cs = unit_vectors(a)
+    assert cs.shape == (1001, 2)
+    assert torch.equal(cs[:, 0], torch.cos(a)) and torch.equal(cs[:, 1], torch.sin(a))
 
 
 def test_rectangle_corners_ccw_and_hand_values():

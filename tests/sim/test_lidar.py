@@ -441,3 +441,25 @@ def test_dense_fast_path_is_bit_identical_to_ray_segment_distance(dtype):
         want = _reference_dense(origin, heading, segs, m, rel, MAX_RANGE)
         assert torch.equal(got, want)
         assert (want < MAX_RANGE).float().mean() > 0.3 and (want == MAX_RANGE).any()
+
+
+def test_fused_dense_form_is_bit_identical_eagerly_and_close_compiled():
+    # the form torch.compile traces (materialised beam directions, coordinate-major ends) runs
+    # eagerly too when gradients are needed: same bits as the plain composition there, and
+    # within float32 round-off of it once compiled
+    g = torch.Generator().manual_seed(8)
+    n, e = 64, 24
+    rel = beam_angles(16)
+    origin = (torch.rand(n, 2, generator=g) - 0.5) * 60
+    heading = (torch.rand(n, generator=g) - 0.5) * 7
+    p = (torch.rand(n, e, 2, generator=g) - 0.5) * 80
+    segs = torch.cat((p, p + (torch.rand(n, e, 2, generator=g) - 0.5) * 30), -1)
+    mask = torch.rand(n, e, generator=g) > 0.3
+    want = _reference_dense(origin, heading, segs, mask, rel, MAX_RANGE)
+    assert (want < MAX_RANGE).float().mean() > 0.3
+    got = lidar_scan(origin, heading, segs.clone().requires_grad_(True), mask, rel, MAX_RANGE)
+    assert torch.equal(got.detach(), want)
+    compiled = torch.compile(lidar_scan, dynamic=False)
+    torch.testing.assert_close(
+        compiled(origin, heading, segs, mask, rel, MAX_RANGE), want, rtol=1e-5, atol=1e-4
+    )
