@@ -317,10 +317,16 @@ class TruckEnv(EnvBase):
         (default all); the one host read (``W``) happens in the reset path, which syncs anyway.
         With ``env.compile`` the width only grows (a high-water mark), so a small batch whose
         largest scene varies from episode to episode compiles a few graphs, not one per width.
+
+        The segments are stored coordinate-major (``[N, 4, E]`` in memory, seen as ``[N, E, 4]``):
+        each coordinate of a row's segments is contiguous, so the compiled body clips and the
+        LiDAR's rotation vectorise over segments (the clip kernel 0.29 -> 0.21 ms per step at
+        N = 1,024), and the eager step's elementwise passes read them as vectors too.
         """
         seg, mask = self._state["segments"], self._state["mask"]
         if index is None:
-            self._cseg, self._cmask = torch.empty_like(seg), torch.empty_like(mask)
+            self._cseg = seg.new_empty(seg.shape[0], seg.shape[2], seg.shape[1]).transpose(1, 2)
+            self._cmask = torch.empty_like(mask)
             self._counts = torch.empty(mask.shape[0], dtype=torch.int64, device=mask.device)
             index = slice(None)
         rows_mask = mask[index]
