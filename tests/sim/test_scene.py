@@ -370,6 +370,22 @@ def test_same_seed_same_scenes_different_seed_different():
     assert not torch.equal(a.segments, c.segments)
 
 
+def test_each_scene_takes_its_first_valid_rejection_round():
+    # the rounds are computed in one batched pass; a scene whose first round is valid must keep
+    # that round's poses however many rounds follow (the pose draws come first, round by round)
+    cfg1 = SceneConfig(rounds=1, crossing_prob=1.0)
+    one, _ = make(cfg1, 2000, 11)
+    many, _ = make(dataclasses.replace(cfg1, rounds=8), 2000, 11)
+    first_ok = one.route != ROUTE_STRAIGHT_ROAD  # a crossing without a valid pair falls back
+    assert 0.3 < first_ok.float().mean() < 1.0  # both kinds of scene occur
+    assert torch.equal(many.start[first_ok], one.start[first_ok])
+    assert torch.equal(many.goal[first_ok], one.goal[first_ok])
+    assert torch.equal(many.route[first_ok], one.route[first_ok])
+    # later rounds rescue most of the scenes round 0 left without a pair
+    rescued = (many.route != ROUTE_STRAIGHT_ROAD) & ~first_ok
+    assert rescued.sum() > 0.5 * (~first_ok).sum()
+
+
 def test_device_follows_generator_and_cuda():
     cfg = SceneConfig()
     params = sample_vehicle_params(VehicleConfig(), 8)

@@ -534,72 +534,86 @@ def _crossing_poses(
         ``route [n]`` (long: :data:`ROUTE_STRAIGHT_ON`, :data:`ROUTE_LEFT` or
         :data:`ROUTE_RIGHT`; :data:`ROUTE_STRAIGHT_ROAD` where not ``ok``).
     """
-    n, dev = roads.centre.shape[0], roads.centre.device
+    n, k = roads.centre.shape[0], cfg.rounds
     L, reach = cfg.half_extent, cfg.half_extent - cfg.curb_reach
-    margin, centre = cfg.pose_intersection_margin, roads.centre
-    ok = torch.zeros(n, dtype=torch.bool, device=dev)
-    start = torch.zeros(n, 4, device=dev)
-    goal = torch.zeros(n, 4, device=dev)
-    route = torch.full((n,), ROUTE_STRAIGHT_ROAD, dtype=torch.long, device=dev)
-    for _ in range(cfg.rounds):
-        r = rand(n, 6)
-        rs = (r[:, 0] < 0.5).long()
-        sig_s = torch.where(r[:, 1] < 0.5, 1.0, -1.0)
-        choice = (3.0 * r[:, 2]).long().clamp_max(2)  # 0 straight on, 1 / 2 turn either way
-        rg = torch.where(choice == 0, rs, 1 - rs)
-        sig_g = torch.where(choice == 0, -sig_s, torch.where(choice == 1, 1.0, -1.0))
-        gaps = _uniform(cfg.shoulder_gap, rand(n, 2))
-        us = -sig_s.unsqueeze(-1) * _pick(roads.dirs, rs)  # towards P
-        ug = sig_g.unsqueeze(-1) * _pick(roads.dirs, rg)  # away from P
-        lat_s = _lateral(_pick(roads.width, rs), gaps[:, 0], ext.half_width)
-        lat_g = _lateral(_pick(roads.width, rg), gaps[:, 1], ext.half_width)
-        # distances along the arms from P: footprints clear of the intersection and of road ends
-        as_lo = _pick(roads.extent, rs) + margin + ext.front
-        as_hi = torch.clamp(L - ext.rear, max=reach)
-        ag_lo = _pick(roads.extent, rg) + margin + ext.rear
-        ag_hi = torch.clamp(L - ext.front, max=reach)
-        # goal distance: uniform over goal_distance and the distances between the nearest and
-        # the farthest pose pair on these arms (all values between are reachable by continuity)
-        q = centre + lat_g.unsqueeze(-1) * _right(ug)
-        p_s = centre + lat_s.unsqueeze(-1) * _right(us)
-        d_near = (p_s - as_lo.unsqueeze(-1) * us - q - ag_lo.unsqueeze(-1) * ug).norm(dim=-1)
-        d_far = (p_s - as_hi.unsqueeze(-1) * us - q - ag_hi.unsqueeze(-1) * ug).norm(dim=-1)
-        d_lo = torch.clamp(torch.minimum(d_near, d_far), min=cfg.goal_distance[0])
-        d_hi = torch.clamp(torch.maximum(d_near, d_far), max=cfg.goal_distance[1])
-        dist = d_lo + (d_hi - d_lo).clamp_min(0.0) * r[:, 3]
-        # Arm distances (lateral offsets ignored) with a goal at ag_lo or ag_hi exactly `dist`
-        # away bound a_s: the goal's arm distance then falls in [ag_lo, ag_hi] in most draws.
-        cos_b = -(us * ug).sum(-1)  # angle between the two arms seen from P
-        sin2_b = (1.0 - cos_b * cos_b).clamp_min(0.0)
-        near = (dist * dist - ag_lo * ag_lo * sin2_b).clamp_min(0.0).sqrt()
-        far = dist * dist - ag_hi * ag_hi * sin2_b
-        as_hi = torch.minimum(as_hi, ag_lo * cos_b + near)
-        as_lo = torch.where(
-            far > 0.0, torch.maximum(as_lo, ag_hi * cos_b + far.clamp_min(0.0).sqrt()), as_lo
-        )
-        a_s = as_lo + (as_hi - as_lo).clamp_min(0.0) * r[:, 4]
-        xs = p_s - a_s.unsqueeze(-1) * us
-        # goal = q + a * ug with |xs - goal| = dist: the larger root of a quadratic in a
-        b = (ug * (xs - q)).sum(-1)
-        disc = b * b - ((xs - q) ** 2).sum(-1) + dist * dist
-        a_g = b + disc.clamp_min(0.0).sqrt()
-        valid = (disc >= 0.0) & (a_g >= ag_lo) & (a_g <= ag_hi) & (as_lo <= as_hi) & (d_lo <= d_hi)
-        xg = q + a_g.unsqueeze(-1) * ug
-        # the picked exit: a turn goes left where the goal direction is counter-clockwise of the
-        # start direction (|cross| = sin(crossing angle) > 0 on the other road)
-        left = us[:, 0] * ug[:, 1] - us[:, 1] * ug[:, 0] > 0.0
-        if cfg.left_turn_exit > 0.0:
-            room = left_turn_exit(xs, us, xg, ug, trailer_wheelbase)
-            valid = valid & ~((choice != 0) & left & (room < cfg.left_turn_exit))
-        take = (valid & ~ok).unsqueeze(-1)
-        start = torch.where(take, _pose(xs, us, rs), start)
-        goal = torch.where(take, _pose(xg, ug, rg), goal)
-        picked = torch.where(
-            choice == 0, ROUTE_STRAIGHT_ON, torch.where(left, ROUTE_LEFT, ROUTE_RIGHT)
-        )
-        route = torch.where(take[:, 0], picked, route)
-        ok = ok | valid
+    margin = cfg.pose_intersection_margin
+    # All rounds in one batched pass: row j * n + i is round j of scene i. The draws keep their
+    # per-round order (so a seed's scenes are those of a loop over rounds, on any device), and
+    # every value is computed by the same elementwise arithmetic as one round at a time.
+    draws = [(rand(n, 6), rand(n, 2)) for _ in range(k)]
+    r = torch.cat([d[0] for d in draws])  # [k n, 6]
+    gaps = _uniform(cfg.shoulder_gap, torch.cat([d[1] for d in draws]))  # [k n, 2]
+    roads = _Roads(**{f.name: _repeat(getattr(roads, f.name), k) for f in fields(roads)})
+    ext = _Extents(_repeat(ext.front, k), _repeat(ext.rear, k), _repeat(ext.half_width, k))
+    centre = roads.centre
+    rs = (r[:, 0] < 0.5).long()
+    sig_s = torch.where(r[:, 1] < 0.5, 1.0, -1.0)
+    choice = (3.0 * r[:, 2]).long().clamp_max(2)  # 0 straight on, 1 / 2 turn either way
+    rg = torch.where(choice == 0, rs, 1 - rs)
+    sig_g = torch.where(choice == 0, -sig_s, torch.where(choice == 1, 1.0, -1.0))
+    us = -sig_s.unsqueeze(-1) * _pick(roads.dirs, rs)  # towards P
+    ug = sig_g.unsqueeze(-1) * _pick(roads.dirs, rg)  # away from P
+    lat_s = _lateral(_pick(roads.width, rs), gaps[:, 0], ext.half_width)
+    lat_g = _lateral(_pick(roads.width, rg), gaps[:, 1], ext.half_width)
+    # distances along the arms from P: footprints clear of the intersection and of road ends
+    as_lo = _pick(roads.extent, rs) + margin + ext.front
+    as_hi = torch.clamp(L - ext.rear, max=reach)
+    ag_lo = _pick(roads.extent, rg) + margin + ext.rear
+    ag_hi = torch.clamp(L - ext.front, max=reach)
+    # goal distance: uniform over goal_distance and the distances between the nearest and
+    # the farthest pose pair on these arms (all values between are reachable by continuity)
+    q = centre + lat_g.unsqueeze(-1) * _right(ug)
+    p_s = centre + lat_s.unsqueeze(-1) * _right(us)
+    d_near = (p_s - as_lo.unsqueeze(-1) * us - q - ag_lo.unsqueeze(-1) * ug).norm(dim=-1)
+    d_far = (p_s - as_hi.unsqueeze(-1) * us - q - ag_hi.unsqueeze(-1) * ug).norm(dim=-1)
+    d_lo = torch.clamp(torch.minimum(d_near, d_far), min=cfg.goal_distance[0])
+    d_hi = torch.clamp(torch.maximum(d_near, d_far), max=cfg.goal_distance[1])
+    dist = d_lo + (d_hi - d_lo).clamp_min(0.0) * r[:, 3]
+    # Arm distances (lateral offsets ignored) with a goal at ag_lo or ag_hi exactly `dist`
+    # away bound a_s: the goal's arm distance then falls in [ag_lo, ag_hi] in most draws.
+    cos_b = -(us * ug).sum(-1)  # angle between the two arms seen from P
+    sin2_b = (1.0 - cos_b * cos_b).clamp_min(0.0)
+    near = (dist * dist - ag_lo * ag_lo * sin2_b).clamp_min(0.0).sqrt()
+    far = dist * dist - ag_hi * ag_hi * sin2_b
+    as_hi = torch.minimum(as_hi, ag_lo * cos_b + near)
+    as_lo = torch.where(
+        far > 0.0, torch.maximum(as_lo, ag_hi * cos_b + far.clamp_min(0.0).sqrt()), as_lo
+    )
+    a_s = as_lo + (as_hi - as_lo).clamp_min(0.0) * r[:, 4]
+    xs = p_s - a_s.unsqueeze(-1) * us
+    # goal = q + a * ug with |xs - goal| = dist: the larger root of a quadratic in a
+    b = (ug * (xs - q)).sum(-1)
+    disc = b * b - ((xs - q) ** 2).sum(-1) + dist * dist
+    a_g = b + disc.clamp_min(0.0).sqrt()
+    valid = (disc >= 0.0) & (a_g >= ag_lo) & (a_g <= ag_hi) & (as_lo <= as_hi) & (d_lo <= d_hi)
+    xg = q + a_g.unsqueeze(-1) * ug
+    # the picked exit: a turn goes left where the goal direction is counter-clockwise of the
+    # start direction (|cross| = sin(crossing angle) > 0 on the other road)
+    left = us[:, 0] * ug[:, 1] - us[:, 1] * ug[:, 0] > 0.0
+    if cfg.left_turn_exit > 0.0:
+        room = left_turn_exit(xs, us, xg, ug, _repeat(trailer_wheelbase, k))
+        valid = valid & ~((choice != 0) & left & (room < cfg.left_turn_exit))
+    picked = torch.where(choice == 0, ROUTE_STRAIGHT_ON, torch.where(left, ROUTE_LEFT, ROUTE_RIGHT))
+    # each scene takes its first valid round; a scene without one keeps zeros (the fallback)
+    ok, row = _first_valid(valid.view(k, n))
+    start = torch.where(ok.unsqueeze(-1), _pose(xs, us, rs)[row], 0.0)
+    goal = torch.where(ok.unsqueeze(-1), _pose(xg, ug, rg)[row], 0.0)
+    route = torch.where(ok, picked[row], ROUTE_STRAIGHT_ROAD)
     return ok, start, goal, route
+
+
+def _repeat(t: Tensor, k: int) -> Tensor:
+    """``t [n, ...]`` stacked ``k`` times along its first dimension: ``[k n, ...]``."""
+    return t.repeat(k, *([1] * (t.dim() - 1)))
+
+
+def _first_valid(valid: Tensor) -> tuple[Tensor, Tensor]:
+    """For ``valid [k, ...]`` (rounds first): whether any round is valid ``[...]``, and the
+    flat index ``round * numel + position`` of the first valid one (of round 0 where none is)."""
+    ok = valid.any(0)
+    first = valid.to(torch.uint8).argmax(0)  # the first maximum: the earliest valid round
+    position = torch.arange(ok.numel(), device=valid.device).view(ok.shape)
+    return ok, first * ok.numel() + position
 
 
 def left_turn_exit(
@@ -728,32 +742,30 @@ def _obstacles(
         _lane_interval(goal, roads, -ext.rear - cfg.pose_zone_length - pad, ext.front + pad),
     ]
 
-    ok = torch.zeros(n, K, dtype=torch.bool, device=dev)
-    s = torch.zeros(n, K, device=dev)
-    dims = torch.zeros(n, K, 3, device=dev)  # half length, half width, curb offset
-    for _ in range(cfg.rounds):
-        r = rand(n, K, 4)
-        half_len = 0.5 * _uniform(cfg.obstacle_length, r[..., 0])
-        room = cfg.obstacle_spacing - 2.0 * half_len - cfg.obstacle_min_gap
-        along = slot_lo + 0.5 * cfg.obstacle_min_gap + half_len + room * r[..., 3]
-        valid = along + half_len <= cfg.half_extent
-        s_r = arm * along
-        for road_p, side_p, lo, hi in zones:
-            same_lane = (road == road_p.unsqueeze(-1)) & (side == side_p.unsqueeze(-1))
-            overlap = (s_r + half_len > lo.unsqueeze(-1)) & (s_r - half_len < hi.unsqueeze(-1))
-            valid = valid & ~(same_lane & overlap)
-        take = (valid & ~ok).unsqueeze(-1)
-        s = torch.where(take[..., 0], s_r, s)
-        drawn = torch.stack(
-            (
-                half_len,
-                0.5 * _uniform(cfg.obstacle_width, r[..., 1]),
-                _uniform(cfg.obstacle_curb_offset, r[..., 2]),
-            ),
-            dim=-1,
-        )
-        dims = torch.where(take, drawn, dims)
-        ok = ok | valid
+    # All rounds at once, rounds first ([k, n, K]); drawn round by round as a loop would.
+    k = cfg.rounds
+    r = torch.stack([rand(n, K, 4) for _ in range(k)])  # [k, n, K, 4]
+    half_len = 0.5 * _uniform(cfg.obstacle_length, r[..., 0])
+    room = cfg.obstacle_spacing - 2.0 * half_len - cfg.obstacle_min_gap
+    along = slot_lo + 0.5 * cfg.obstacle_min_gap + half_len + room * r[..., 3]
+    valid = along + half_len <= cfg.half_extent
+    s_r = arm * along
+    for road_p, side_p, lo, hi in zones:
+        same_lane = (road == road_p.unsqueeze(-1)) & (side == side_p.unsqueeze(-1))
+        overlap = (s_r + half_len > lo.unsqueeze(-1)) & (s_r - half_len < hi.unsqueeze(-1))
+        valid = valid & ~(same_lane & overlap)
+    drawn = torch.stack(
+        (
+            half_len,
+            0.5 * _uniform(cfg.obstacle_width, r[..., 1]),
+            _uniform(cfg.obstacle_curb_offset, r[..., 2]),
+        ),
+        dim=-1,
+    )  # [k, n, K, 3]: half length, half width, curb offset
+    # each slot takes its first valid round; a slot without one stays zero (and is masked)
+    ok, index = _first_valid(valid)
+    s = torch.where(ok, s_r.flatten()[index], 0.0)
+    dims = torch.where(ok.unsqueeze(-1), drawn.flatten(0, 2)[index], 0.0)
     half_len, half_wid, offset = dims.unbind(-1)
     lateral = side * (0.5 * roads.width[rows, road] - offset - half_wid)
     xy = (
