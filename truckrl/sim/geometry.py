@@ -32,8 +32,7 @@ def cross2(ax: Tensor, ay: Tensor, bx: Tensor, by: Tensor) -> Tensor:
 def rotate(xy: Tensor, angle: Tensor) -> Tensor:
     """Rotate points ``xy [..., 2]`` counter-clockwise by ``angle [...]`` [rad] about the origin."""
     c, s = torch.cos(angle), torch.sin(angle)
-    x, y = xy[..., 0], xy[..., 1]
-    return torch.stack((c * x - s * y, s * x + c * y), dim=-1)
+    return torch.stack(_rotated(c, s, xy[..., 0], xy[..., 1]), dim=-1)
 
 
 def to_local(xy: Tensor, origin: Tensor, heading: Tensor) -> Tensor:
