@@ -2,18 +2,22 @@
 # The GPU figures of the README (Benchmarks, GPU), in one go, on a machine with one CUDA GPU and
 # truckrl's dependencies importable. Run from the repository root:
 #
-#   launch/gpu.sh OUT [checks|train|all] [MINUTES]
+#   launch/gpu.sh OUT [checks|train|demos|all] [MINUTES]
 #
 #   checks: the CUDA tests (tests/test_device.py: no host sync in env.step, a collector + PPO
 #           iteration that stays on the GPU), `bench env --device cuda` at N = 4,096 ... 262,144
 #           and `bench train device=cuda experiment=gpu` at 32,768 trucks, 8 minibatches;
 #   train:  `python -m truckrl.train experiment=gpu` until difficulty 6 or MINUTES (default 8);
+#   demos:  `python -m truckrl.train experiment=gpu_demos stop_difficulty=6` until difficulty 6 or
+#           MINUTES; if it fails within its first 150 s (a compile error, say), once more with
+#           the policy, the loss and the planner eager (the env stays compiled). Writes demos_perf.json: the promotions and the
+#           medians of the per-iteration timings, read from its TensorBoard log;
 #
 # Logs, JSON and the runs' train.log and last checkpoint land flat in OUT; the run folders
 # themselves go to RUNS (default outputs/gpu). Every step runs even if an earlier one fails; the
 # exit code is the number of failures.
 set -u
-OUT=${1:?usage: launch/gpu.sh OUT [checks|train|all] [MINUTES]}
+OUT=${1:?usage: launch/gpu.sh OUT [checks|train|demos|all] [MINUTES]}
 WHAT=${2:-all}
 MIN=${3:-8}
 RUNS=${RUNS:-outputs/gpu}
@@ -32,7 +36,7 @@ step() {  # step NAME COMMAND...: run, tee the log into OUT/NAME.log, count a fa
 
 { nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
   python3 -c 'import torch, torchrl, tensordict; print("torch", torch.__version__, "torchrl", torchrl.__version__, "tensordict", tensordict.__version__, torch.cuda.get_device_name())'
-  nproc; } 2>&1 | tee "$OUT/device.txt"
+  nproc; command -v g++ || echo "no g++"; } 2>&1 | tee "$OUT/device.txt"
 
 if [ "$WHAT" = checks ] || [ "$WHAT" = all ]; then
     step tests python3 -m pytest -q -p no:cacheprovider tests/test_device.py -rs
@@ -45,5 +49,28 @@ if [ "$WHAT" = train ] || [ "$WHAT" = all ]; then
     step train python3 -m truckrl.train experiment=gpu max_minutes="$MIN" \
         hydra.run.dir="$RUNS/train" log.progress_bar=false log.video_interval=0
     cp "$RUNS/train/train.log" "$OUT/train_run.log"; cp "$RUNS/train/checkpoints/last.pt" "$OUT/train_last.pt"
+fi
+if [ "$WHAT" = demos ]; then
+    demos() {  # demos EXTRA_OVERRIDES...
+        step demos timeout $((MIN * 60 + 90)) python3 -m truckrl.train experiment=gpu_demos \
+            stop_difficulty=6 max_minutes="$MIN" hydra.run.dir="$RUNS/demos" overwrite=true \
+            log.progress_bar=false log.video_interval=0 "$@"
+    }
+    t0=$SECONDS; before=$fails
+    demos
+    if [ $fails -gt $before ] && [ $((SECONDS - t0)) -lt 150 ]; then
+        demos ppo.compile=false collector.compile_policy=false demos.compile=false
+    fi
+    cp "$RUNS/demos/train.log" "$OUT/demos_run.log"; cp "$RUNS/demos/checkpoints/last.pt" "$OUT/demos_last.pt"
+    python3 - "$RUNS/demos" >"$OUT/demos_perf.json" <<'PY'
+import json, sys
+import numpy as np
+from truckrl.viz.curves import load_scalars, milestones
+s = load_scalars(sys.argv[1])
+med = {k: float(np.median(v[:, 2])) for k, v in s.items() if k.startswith("perf/")}
+first = {k: float(v[0, 2]) for k, v in s.items() if k.startswith("perf/")}
+print(json.dumps({"milestones": milestones(s), "median": med, "first_iteration": first,
+                  "iterations": int(len(s["perf/fps"]))}, indent=1))
+PY
 fi
 exit $fails

@@ -36,6 +36,39 @@ def test_gpu_experiment_asks_for_cuda_and_refuses_a_machine_without_it():
             to_config(TrainConfig, cfg)
 
 
+def test_gpu_demos_experiment_is_demos_with_a_gpu_batch_and_the_planner_on_the_host():
+    import torch
+
+    demos = compose_config("train", "experiment=demos")
+    gpu = compose_config("train", "experiment=gpu_demos")
+    assert (gpu.device, gpu.demos.device, demos.demos.device) == ("cuda", "cpu", None)
+    assert (gpu.collector.num_envs, gpu.collector.steps_per_env) == (4096, 64)
+    assert (gpu.demos.bc_batch, demos.demos.bc_batch) == (4096, 1024)
+    # everything else is experiment=demos, the training scenes (all crossings) included
+    on_cpu = compose_config("train", "experiment=gpu_demos", "device=cpu", "demos.device=null",
+                            "collector.num_envs=1024", "demos.bc_batch=1024")  # fmt: skip
+    assert to_config(TrainConfig, on_cpu) == to_config(TrainConfig, demos)
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match=r"^device = 'cuda' but torch sees no CUDA GPU"):
+            to_config(TrainConfig, gpu)
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        ("gpu0", r"^demos.device = 'gpu0' is not a torch device"),
+        ("cuda", r"^demos.device = 'cuda' but torch sees no CUDA GPU"),
+    ],
+)
+def test_demos_device_is_checked_before_work(value, message):
+    import torch
+
+    if value == "cuda" and torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    with pytest.raises(ConfigError, match=message):
+        to_config(TrainConfig, compose_config("train", f"demos.device={value}"))
+
+
 def test_compile_options_without_a_cpp_compiler_stop_before_work(monkeypatch, tmp_path):
     """torch.compile on the CPU builds its kernels with $CXX (g++): without one the run stops at
     the config with one line naming the options that are on, not minutes later in inductor."""

@@ -142,6 +142,11 @@ class DemosConfig:
         None, lo=1, hi=100_000, doc="planner CEM iterations per attempt (null: its own)"
     )
     compile: bool = param(True, doc="torch.compile the planner's rollouts (~15 s once)")
+    device: str | None = param(
+        None,
+        doc="where the planner plans and replays (null: the run's device); cloning runs on the "
+        "run's device. experiment=gpu_demos plans on the host's CPU cores (cpu)",
+    )
     bc_coeff: float = param(
         0.0,
         lo=0.0,
@@ -212,13 +217,19 @@ class TrainConfig:
     def __post_init__(self) -> None:
         validate(self)
         check_device("device", self.device)
+        if self.demos.device is not None:
+            check_device("demos.device", self.demos.device)
         planner_compile = self.demos.compile and self.demos.episodes > 0 and self.init is None
-        check_compiler(
-            self.device,
-            **{"env.compile": self.env.compile, "ppo.compile": self.ppo.compile},
-            **{"collector.compile_policy": self.collector.compile_policy},
-            **{"demos.compile": planner_compile and self.demos.source == "planner"},
-        )
+        planner_compile = planner_compile and self.demos.source == "planner"
+        compiled = {"env.compile": self.env.compile, "ppo.compile": self.ppo.compile}
+        compiled |= {"collector.compile_policy": self.collector.compile_policy}
+        planner = {"demos.compile": planner_compile}
+        plan_device = self.demos.device or self.device
+        if plan_device.startswith("cpu") == self.device.startswith("cpu"):
+            check_compiler(self.device, **compiled, **planner)  # one line naming them all
+        else:  # the planner on the other side (experiment=gpu_demos: the host's CPU)
+            check_compiler(self.device, **compiled)
+            check_compiler(plan_device, **planner)
         from truckrl.task.config import with_env_overrides
 
         with_env_overrides(self.env, self.train_env, fixed=True, where="train_env")

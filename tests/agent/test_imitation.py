@@ -16,6 +16,7 @@ from truckrl import plan as plan_cli
 from truckrl.agent.imitation import (
     SAMPLES_NAME,
     behaviour_clone,
+    bootstrap,
     demonstrations,
     load_samples,
     set_action_std,
@@ -150,3 +151,23 @@ def test_samples_file_round_trips_and_a_bad_one_is_one_line(tmp_path):
         with pytest.raises(ValueError, match=text) as e:
             load_samples(p)
         assert str(p) in str(e.value) and len(str(e.value).splitlines()) == 1
+
+
+def test_bootstrap_plans_on_demos_device_else_on_the_runs(monkeypatch):
+    """``demos.device`` moves the planner (experiment=gpu_demos: the host's CPU under a GPU run);
+    unset, it plans where the run is."""
+    import truckrl.agent.planner as planner
+    from truckrl.configs import DemosConfig
+
+    seen = []
+
+    def start_states(env_cfg, episodes, seed, device, difficulty=None):
+        seen.append(str(device))
+        raise RuntimeError("planned")  # where the planner runs is all this test needs
+
+    monkeypatch.setattr(planner, "held_out_states", start_states)
+    for dc, run_device in ((DemosConfig(episodes=2, device="cpu"), "meta"),
+                           (DemosConfig(episodes=2), "meta")):  # fmt: skip
+        with pytest.raises(RuntimeError, match="planned"):
+            bootstrap(None, ENV, dc, run_device)
+    assert seen == ["cpu", "meta"]

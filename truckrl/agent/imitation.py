@@ -218,7 +218,9 @@ def bootstrap(
     Args:
         ac: the fresh actor-critic (changed in place: trunk and mean head, log-std).
         env_cfg: the training's env config (the plans use it).
-        dc: :class:`~truckrl.configs.DemosConfig`.
+        dc: :class:`~truckrl.configs.DemosConfig`; the planner runs on ``dc.device`` when set,
+            else on ``device``.
+        device: where ``ac`` is and the cloning runs.
         seed: behaviour-cloning shuffle seed.
         progress: ``progress(done, total)`` after every planner iteration, or None.
 
@@ -240,9 +242,10 @@ def bootstrap(
     else:
         overrides = {"compile": dc.compile}
         overrides |= {k: getattr(dc, k) for k in ("samples", "iterations") if getattr(dc, k)}
-        states = held_out_states(env_cfg, dc.episodes, dc.seed, device)
+        where = getattr(dc, "device", None) or device
+        states = held_out_states(env_cfg, dc.episodes, dc.seed, where)
         results, _, _ = plan_states(
-            env_cfg, states, dc.difficulty, PlannerConfig(**overrides), device, progress
+            env_cfg, states, dc.difficulty, PlannerConfig(**overrides), where, progress
         )
         success = results["success"]
     t_plan = time.perf_counter() - t0
