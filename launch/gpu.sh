@@ -9,9 +9,10 @@
 #           and `bench train device=cuda experiment=gpu` at 32,768 trucks, 8 minibatches;
 #   train:  `python -m truckrl.train experiment=gpu` until difficulty 6 or MINUTES (default 8);
 #   demos:  `python -m truckrl.train experiment=gpu_demos stop_difficulty=6` until difficulty 6 or
-#           MINUTES; if it fails within its first 150 s (a compile error, say), once more with
-#           the policy, the loss and the planner eager (the env stays compiled). Writes demos_perf.json: the promotions and the
-#           medians of the per-iteration timings, read from its TensorBoard log;
+#           MINUTES (whole minutes); if it fails within its first 150 s (a compile error, say),
+#           once more with the policy, the loss and the planner eager (the env stays compiled).
+#           Writes demos_perf.json: the promotions and the medians of the per-iteration
+#           timings, read from its TensorBoard log;
 #
 # Logs, JSON and the runs' train.log and last checkpoint land flat in OUT; the run folders
 # themselves go to RUNS (default outputs/gpu). Every step runs even if an earlier one fails; the

@@ -36,16 +36,16 @@ def test_gpu_experiment_asks_for_cuda_and_refuses_a_machine_without_it():
             to_config(TrainConfig, cfg)
 
 
-def test_gpu_demos_experiment_is_demos_with_a_gpu_batch_and_the_planner_on_the_host():
+def test_gpu_demos_experiment_is_demos_with_a_gpu_batch():
     import torch
 
     demos = compose_config("train", "experiment=demos")
     gpu = compose_config("train", "experiment=gpu_demos")
-    assert (gpu.device, gpu.demos.device, demos.demos.device) == ("cuda", "cpu", None)
+    assert (gpu.device, gpu.demos.device) == ("cuda", None)  # the planner on the GPU too
     assert (gpu.collector.num_envs, gpu.collector.steps_per_env) == (4096, 64)
     assert (gpu.demos.bc_batch, demos.demos.bc_batch) == (4096, 1024)
     # everything else is experiment=demos, the training scenes (all crossings) included
-    on_cpu = compose_config("train", "experiment=gpu_demos", "device=cpu", "demos.device=null",
+    on_cpu = compose_config("train", "experiment=gpu_demos", "device=cpu",
                             "collector.num_envs=1024", "demos.bc_batch=1024")  # fmt: skip
     assert to_config(TrainConfig, on_cpu) == to_config(TrainConfig, demos)
     if not torch.cuda.is_available():

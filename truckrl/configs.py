@@ -145,7 +145,8 @@ class DemosConfig:
     device: str | None = param(
         None,
         doc="where the planner plans and replays (null: the run's device); cloning runs on the "
-        "run's device. experiment=gpu_demos plans on the host's CPU cores (cpu)",
+        "run's device. cpu under a GPU run: the host's cores (on the H100 machine's 16: 2.4 min "
+        "for 600 scenes, against 0.7 min on its GPU)",
     )
     bc_coeff: float = param(
         0.0,
@@ -227,7 +228,7 @@ class TrainConfig:
         plan_device = self.demos.device or self.device
         if plan_device.startswith("cpu") == self.device.startswith("cpu"):
             check_compiler(self.device, **compiled, **planner)  # one line naming them all
-        else:  # the planner on the other side (experiment=gpu_demos: the host's CPU)
+        else:  # the planner on the other side (a GPU run planning on the host's CPU)
             check_compiler(self.device, **compiled)
             check_compiler(plan_device, **planner)
         from truckrl.task.config import with_env_overrides
