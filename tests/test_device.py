@@ -141,3 +141,21 @@ def test_cuda_collector_and_ppo_iteration_stay_on_the_gpu():
             assert not torch.is_tensor(s) or s.device.type == "cuda" or s.dim() == 0
     collector.shutdown()
     env.close()
+
+
+@cuda
+def test_cuda_demonstrations_plan_and_clone_on_the_gpu():
+    """experiment=gpu_demos' start: the planner plans on the GPU and the cloned actor stays there
+    (ran on an H100 inside a whole run, README, Benchmarks, GPU)."""
+    from truckrl.agent.config import ModelConfig
+    from truckrl.agent.imitation import bootstrap
+    from truckrl.agent.network import make_actor_critic
+    from truckrl.configs import DemosConfig
+    from truckrl.task import EnvConfig
+
+    ac = make_actor_critic(ModelConfig(), 26, 16)
+    ac.model.to("cuda")
+    dc = DemosConfig(episodes=4, difficulty=0.0, samples=48, iterations=3, compile=False, epochs=2)
+    summary, samples = bootstrap(ac, EnvConfig(max_steps=120), dc, "cuda")
+    assert summary["plans_kept"] >= 1 and samples.batch_size[0] > 0
+    assert all(p.device.type == "cuda" for p in ac.model.parameters())
