@@ -30,15 +30,17 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="env seed and action seed")
     parser.add_argument("--threads", type=int, default=2, help="torch threads")
     parser.add_argument("--eager", action="store_true", help="without env.compile")
+    parser.add_argument("--beams", type=int, default=16, help="LiDAR beams (env.lidar.num_beams)")
     args = parser.parse_args()
-    for name in ("envs", "steps", "windows", "threads"):
+    for name in ("envs", "steps", "windows", "threads", "beams"):
         if getattr(args, name) < 1:
             parser.error(f"--{name} {getattr(args, name)}: must be >= 1")
     if args.warmup < 0:
         parser.error(f"--warmup {args.warmup}: must be >= 0")
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
-    env = TruckEnv(num_envs=args.envs, config={"compile": not args.eager}, seed=args.seed)
+    config = {"compile": not args.eager, "lidar": {"num_beams": args.beams}}
+    env = TruckEnv(num_envs=args.envs, config=config, seed=args.seed)
     td = env.reset()
     for _ in range(args.warmup):
         td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))[1]
@@ -50,7 +52,8 @@ def main() -> None:
         rates.append(args.envs * args.steps / (time.perf_counter() - t0))
     width = getattr(env, "_width", None)
     print(
-        f"{args.label} N={args.envs} compile={not args.eager} W={width} threads={args.threads}: "
+        f"{args.label} N={args.envs} R={args.beams} compile={not args.eager} W={width} "
+        f"threads={args.threads}: "
         f"median {statistics.median(rates):,.0f} env-steps/s "
         f"(windows: {', '.join(f'{r:,.0f}' for r in rates)})"
     )

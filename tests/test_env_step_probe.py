@@ -15,10 +15,11 @@ def run(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_probe_prints_a_median_rate():
-    out = run("--eager", "--envs", "4", "--warmup", "2", "--steps", "3", "--windows", "2")
+    out = run("--eager", "--envs", "4", "--warmup", "2", "--steps", "3", "--windows", "2",
+              "--beams", "8")  # fmt: skip
     assert out.returncode == 0, out.stderr
     line = out.stdout.strip().splitlines()[-1]
-    assert "N=4 compile=False" in line and "env-steps/s" in line and "windows:" in line
+    assert "N=4 R=8 compile=False" in line and "env-steps/s" in line and "windows:" in line
 
 
 def test_probe_rejects_bad_input_with_exit_2():

@@ -71,6 +71,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from truckrl.sim.compiled import compile_sim
 from truckrl.sim.control import CONTROL_KEYS
 from truckrl.sim.validation import ConfigError, build, check_range
 from truckrl.sim.vehicle import PARAM_KEYS, REVERSE_KEYS
@@ -116,7 +117,7 @@ class TruckEnv(EnvBase):
         self._param_keys = (*PARAM_KEYS, *(REVERSE_KEYS if self.task.reverse else ()))
         self._make_specs()
         compile_fn = (
-            (lambda f: torch.compile(f, dynamic=False)) if self.config.compile else (lambda f: f)
+            (lambda f: compile_sim(f, self.device)) if self.config.compile else (lambda f: f)
         )
         self._transition_fn = compile_fn(self.task.transition)
         self._observe_fn = compile_fn(self.task.observe)
@@ -124,7 +125,9 @@ class TruckEnv(EnvBase):
         # task with a start curriculum restarts): their count changes from call to call, so
         # one graph with a symbolic batch size instead of one per count
         self._observe_rows_fn = (
-            torch.compile(self.task.observe, dynamic=True) if self.config.compile else None
+            compile_sim(self.task.observe, self.device, dynamic=True)
+            if self.config.compile
+            else None
         )
         # a task without a start curriculum keeps drawn episodes as they are: the pool then holds
         # their first observation too, and a partial reset copies plain tensors and never

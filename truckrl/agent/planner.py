@@ -95,6 +95,7 @@ from torch import Tensor
 from truckrl.agent.categories import trailer_length
 from truckrl.agent.rollout import SCENE_INFO_ENTRIES, policy_actions
 from truckrl.env import TruckEnv
+from truckrl.sim.compiled import compile_sim
 from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES, MODE_TABLE
 from truckrl.sim.geometry import wrap_angle
 from truckrl.sim.validation import ConfigError, build, check_range, param, validate
@@ -304,7 +305,7 @@ class Planner:
         self.lat_limits = [lim for _, lim in MODE_TABLE["lateral"].values()]
         self.state_keys = ("pose", "goal", "segments", "mask", "step_count", *CONTROL_KEYS)
         self.state_keys += self.task.error_keys
-        self._step = torch.compile(self._step_fn, dynamic=False) if pc.compile else self._step_fn
+        self._step = compile_sim(self._step_fn, self.device) if pc.compile else self._step_fn
 
     # ------------------------------------------------------------------ one step
     def _track(self, ref: Tensor, q: Sequence[Tensor], hi: Sequence[Tensor], lo0, order: int):

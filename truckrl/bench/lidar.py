@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from truckrl.bench.report import print_table, time_call, write_json
+from truckrl.sim.compiled import compile_sim
 from truckrl.sim.geometry import rectangle_segments
 from truckrl.sim.lidar import METHODS, SweepLidar, beam_angles, lidar_oracle, lidar_scan
 
@@ -183,7 +184,7 @@ def run(args: argparse.Namespace) -> dict:
             row[f"{m}_vs_sweep"] = (n / t) * sweep_s
         if not args.no_compile:
             # the environment's path with env.compile=true: the dense scan fused by torch.compile
-            compiled = torch.compile(lidar_scan, dynamic=False)
+            compiled = compile_sim(lidar_scan, args.device)
 
             def fn(seg=seg, origin=origin, heading=heading, compiled=compiled):
                 return compiled(origin, heading, seg, None, rel.to(args.device), MAX_RANGE, "dense")
