@@ -154,7 +154,7 @@ def test_samples_file_round_trips_and_a_bad_one_is_one_line(tmp_path):
 
 
 def test_bootstrap_plans_on_demos_device_else_on_the_runs(monkeypatch):
-    """``demos.device`` moves the planner (experiment=gpu_demos: the host's CPU under a GPU run);
+    """``demos.device`` moves the planner (``cpu``: a GPU run planning on the host's cores);
     unset, it plans where the run is."""
     import truckrl.agent.planner as planner
     from truckrl.configs import DemosConfig

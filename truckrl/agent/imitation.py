@@ -242,7 +242,7 @@ def bootstrap(
     else:
         overrides = {"compile": dc.compile}
         overrides |= {k: getattr(dc, k) for k in ("samples", "iterations") if getattr(dc, k)}
-        where = getattr(dc, "device", None) or device
+        where = dc.device or device
         states = held_out_states(env_cfg, dc.episodes, dc.seed, where)
         results, _, _ = plan_states(
             env_cfg, states, dc.difficulty, PlannerConfig(**overrides), where, progress

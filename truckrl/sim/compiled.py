@@ -11,9 +11,10 @@ inlining it into the kernel that reads it, once its loop body has more than
 over the E segments) has 50-60. Above the threshold, the compiled LiDAR wrote all ``N x R x E``
 pair distances and read them back to reduce them: 67 MB per step at N = 1,024, R = 256, E = 64.
 With the threshold at :data:`CPU_OPCOUNT_THRESHOLD` the minimum is taken inside the pair loop
-(README, Benchmarks, "eighth pass"): the compiled env at N = 1,024 ran 33 k -> 72-76 k env-steps/s
-with 256 beams and 224-245 k -> 275-297 k with 32; the compiled LiDAR alone at R = 256 went
-29-33 ms -> 11 ms. On CUDA, inductor's own default is kept (not measured there).
+(README, Benchmarks, "eighth pass"): the compiled env at N = 1,024 went from 31 k to 74 k
+env-steps/s with 256 beams (medians of three alternating rounds), and at 16 and 32 beams gained
+1.05x, inside the machine's noise; the compiled LiDAR alone at R = 256 went 29-33 ms -> 11 ms.
+On CUDA, inductor's own default is kept (not measured there).
 """
 
 from __future__ import annotations
