@@ -1,24 +1,40 @@
 """The env's outputs stay bit-identical, and one PPO iteration float-identical, to the recordings
 in tests/golden/.
 
-A refactor of the env must not change a single bit. The PPO iteration runs matrix products,
-whose BLAS kernels (MKL / oneDNN) are chosen per CPU: the same code on an AVX-512 and an AVX2
-machine rounds a few sums differently (measured: up to 2.5e-7 relative after the iteration), so
-it is compared to 2e-6 relative, a few float32 ulps, far below what any change of the update's
-arithmetic moves (a 1 % change of one gradient moves parameters by ~1e-5 relative). A change that
-is meant to alter outputs re-records them (``python tests/golden/golden.py``) and says why in its
-commit message.
+A refactor of the env must not change a single bit. The recordings are made and checked in a
+subprocess under :data:`~tests.golden.golden.PINNED_ENV` (scalar kernels, one thread), so they do
+not depend on the machine's vector unit. The PPO iteration's matrix products still go through
+BLAS, whose blocking may differ by CPU, so it is compared to 2e-6 of each entry's largest
+magnitude, a few float32 ulps, far below what any change of the update's arithmetic moves (a 1 %
+change of one gradient moves parameters by ~1e-5 relative). A change that is meant to alter
+outputs re-records them (``python -m tests.golden.golden``) and says why in its commit message.
 """
+
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
-from tests.golden.golden import PPO_FILE, ROLLOUT_FILE, golden_ppo, golden_rollout, load_golden
+from tests.golden.golden import PINNED_ENV, PPO_FILE, ROLLOUT_FILE, TASK_ROLLOUT_FILES, load_golden
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
-def _compare(expected_file, actual: dict[str, np.ndarray], rtol: float = 0.0) -> None:
-    expected = load_golden(expected_file)
+@pytest.fixture(scope="module")
+def fresh(tmp_path_factory) -> Path:
+    """A folder with every recording made afresh by the code under test."""
+    out = tmp_path_factory.mktemp("golden")
+    env = {**os.environ, **PINNED_ENV}
+    cmd = [sys.executable, "-m", "tests.golden.golden", "--out", str(out)]
+    subprocess.run(cmd, cwd=ROOT, env=env, check=True, capture_output=True, timeout=600)
+    return out
+
+
+def _compare(expected_file: Path, actual_file: Path, rtol: float = 0.0) -> None:
+    expected, actual = load_golden(expected_file), load_golden(actual_file)
     assert sorted(actual) == sorted(expected), "the set of output keys changed"
     for k, v in expected.items():
         a = actual[k]
@@ -30,17 +46,15 @@ def _compare(expected_file, actual: dict[str, np.ndarray], rtol: float = 0.0) ->
             np.testing.assert_allclose(a, v, rtol=0.0, atol=rtol * np.abs(v).max(), err_msg=msg)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)  # the recordings were made with one thread (reduction order)
-    yield
-    torch.set_num_threads(n)
+def test_golden_rollout_bit_identical(fresh):
+    _compare(ROLLOUT_FILE, fresh / ROLLOUT_FILE.name)
 
 
-def test_golden_rollout_bit_identical():
-    _compare(ROLLOUT_FILE, golden_rollout())
+def test_golden_ppo_iteration_float_identical(fresh):
+    _compare(PPO_FILE, fresh / PPO_FILE.name, rtol=2e-6)
 
 
-def test_golden_ppo_iteration_float_identical():
-    _compare(PPO_FILE, golden_ppo(), rtol=2e-6)
+@pytest.mark.parametrize("name", sorted(TASK_ROLLOUT_FILES))
+def test_golden_task_rollout_bit_identical(fresh, name):
+    path = TASK_ROLLOUT_FILES[name]
+    _compare(path, fresh / path.name)

@@ -1,6 +1,9 @@
 """Golden recordings that pin the env's outputs and one PPO iteration bit for bit.
 
-``python tests/golden/golden.py`` re-records both files. Do that only when a change is *meant* to
+``python -m tests.golden.golden`` re-records every file; ``--out DIR`` writes them elsewhere (the
+test compares such a fresh set with the recordings). Both run under :data:`PINNED_ENV`: torch's
+scalar kernels and MKL's compatible code path, one thread, so the bits do not depend on which
+vector unit the machine has (AVX2 and AVX-512 kernels round ``r_progress`` differently). Do that only when a change is *meant* to
 alter outputs, and say why in the commit message; a refactor must leave them untouched.
 
 * ``rollout.npz``: ``TruckEnv(num_envs=64, seed=0)`` with the default config, 200 steps of
@@ -8,12 +11,16 @@ alter outputs, and say why in the commit message; a refactor must leave them unt
   NaN action every 37th step on truck 5 for the non-finite guard), with partial resets. Every
   leaf of every step is kept (root and ``next``); the file stores a root entry only where it is
   not the previous step's ``next`` entry (:func:`pack`), which keeps it under 2 MiB.
+* ``rollout_dock.npz``, ``rollout_uturn.npz``: the same kind of rollout for the reversing tasks,
+  ``TruckEnv(num_envs=16, seed=0)`` with ``task.name`` set, 100 steps (:func:`golden_task_rollout`).
 * ``ppo.npz``: one PPO update (2 epochs x 4 minibatches) on a 16-truck x 32-step rollout of the
   paper's network under ``torch.manual_seed(0)``: the loss metrics and every parameter after it.
 """
 
 from __future__ import annotations
 
+import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -23,6 +30,10 @@ import torch
 HERE = Path(__file__).resolve().parent
 ROLLOUT_FILE = HERE / "rollout.npz"
 PPO_FILE = HERE / "ppo.npz"
+#: Environment the recordings are made and checked under (read by torch and MKL at import).
+PINNED_ENV = {"ATEN_CPU_CAPABILITY": "default", "MKL_CBWR": "COMPATIBLE", "OMP_NUM_THREADS": "1"}
+#: Reversing tasks pinned by their own recordings (N = 16, 100 steps).
+TASK_ROLLOUT_FILES = {name: HERE / f"rollout_{name}.npz" for name in ("dock", "uturn")}
 
 
 def _flat(td) -> dict[str, np.ndarray]:
@@ -33,24 +44,34 @@ def _flat(td) -> dict[str, np.ndarray]:
     return out
 
 
-def golden_rollout() -> dict[str, np.ndarray]:
-    """Every output key of every step of the fixed rollout (eager env)."""
+def _fixed_rollout(num_envs: int, steps: int, config: dict | None) -> dict[str, np.ndarray]:
+    """Every output key of every step of ``steps`` fixed random actions (eager env, seed 0)."""
     from truckrl.env import TruckEnv
 
-    env = TruckEnv(num_envs=64, seed=0)
+    env = TruckEnv(num_envs=num_envs, seed=0, config=config)
     gen = torch.Generator().manual_seed(1234)
     step = [0]
 
     def policy(td):
-        a = torch.rand(64, 2, generator=gen) * 2.4 - 1.2
+        a = torch.rand(num_envs, 2, generator=gen) * 2.4 - 1.2
         if step[0] % 37 == 0:
             a[5] = float("nan")
         step[0] += 1
         return td.set("action", a)
 
-    td = env.rollout(200, policy, break_when_any_done=False)
+    td = env.rollout(steps, policy, break_when_any_done=False)
     env.close()
     return _flat(td)
+
+
+def golden_rollout() -> dict[str, np.ndarray]:
+    """Every output key of every step of the fixed rollout (eager env, default config)."""
+    return _fixed_rollout(64, 200, None)
+
+
+def golden_task_rollout(name: str) -> dict[str, np.ndarray]:
+    """The fixed rollout of task ``name`` (16 trucks, 100 steps, the task's default config)."""
+    return _fixed_rollout(16, 100, {"task": {"name": name}})
 
 
 #: Suffix of a packed root key: its values at the steps where an episode (re)starts.
@@ -119,11 +140,31 @@ def golden_ppo() -> dict[str, np.ndarray]:
     return out
 
 
-def main() -> None:
+def record(out: Path) -> list[Path]:
+    """Write every recording into ``out``; returns the files written."""
     torch.set_num_threads(1)
-    np.savez_compressed(ROLLOUT_FILE, **pack(golden_rollout()))
-    np.savez_compressed(PPO_FILE, **golden_ppo())
-    print(f"wrote {ROLLOUT_FILE} ({ROLLOUT_FILE.stat().st_size:,} B), {PPO_FILE}")
+    out.mkdir(parents=True, exist_ok=True)
+    files = {out / ROLLOUT_FILE.name: pack(golden_rollout()), out / PPO_FILE.name: golden_ppo()}
+    for name, path in TASK_ROLLOUT_FILES.items():
+        files[out / path.name] = pack(golden_task_rollout(name))
+    for path, data in files.items():
+        np.savez_compressed(path, **data)
+    return list(files)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="record the golden files under PINNED_ENV")
+    ap.add_argument(
+        "--out", type=Path, default=HERE, help="folder to write (default: tests/golden)"
+    )
+    args = ap.parse_args(argv)
+    if any(os.environ.get(k) != v for k, v in PINNED_ENV.items()):  # torch reads them at import
+        env = {**os.environ, **PINNED_ENV}
+        cmd = [sys.executable, "-m", "tests.golden.golden", "--out", str(args.out)]
+        os.execve(sys.executable, cmd, env)
+    for path in record(args.out):
+        print(f"wrote {path} ({path.stat().st_size:,} B)")
+    return 0
 
 
 if __name__ == "__main__":
