@@ -17,12 +17,12 @@ import torch
 import yaml
 from hydra import compose, initialize_config_dir
 
-from truckrl.agent.checkpoint import save_training_state
-from truckrl.agent.curriculum import Curriculum
-from truckrl.agent.network import make_actor_critic
-from truckrl.agent.ppo import PPO
 from truckrl.cli import CONFIG_PATH, to_config
-from truckrl.configs import TrainConfig, register
+from truckrl.config.schemas import TrainConfig, register
+from truckrl.rl.checkpoint import save_training_state
+from truckrl.rl.curriculum import Curriculum
+from truckrl.rl.network import make_actor_critic
+from truckrl.rl.ppo import PPO
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Overrides that make a training run take seconds.

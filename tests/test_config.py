@@ -6,10 +6,10 @@ import pytest
 
 from tests.conftest import compose_config, run_cli
 from truckrl.cli import to_config
-from truckrl.configs import EvaluateConfig, PlayConfig, TrainConfig, main
+from truckrl.config.fields import ConfigError
+from truckrl.config.schemas import EvaluateConfig, PlayConfig, TrainConfig, main
 from truckrl.sim.control import LATERAL_MODES, LONGITUDINAL_MODES
-from truckrl.sim.validation import ConfigError
-from truckrl.task import task_names
+from truckrl.tasks import task_names
 
 
 def test_defaults_compose_to_the_dataclass_defaults():

@@ -84,7 +84,7 @@ def test_the_scan_finds_a_factory_without_device(tmp_path):
 
 @pytest.mark.parametrize("name", ["intersection", "dock", "uturn"])
 def test_task_to_moves_every_tensor(name):
-    from truckrl.task import EnvConfig, make_task
+    from truckrl.tasks import EnvConfig, make_task
 
     task = make_task(EnvConfig(task={"name": name})).to("meta")
     stray = {k: v.device for k, v in vars(task).items() if torch.is_tensor(v)}
@@ -120,10 +120,10 @@ def test_cuda_step_path_has_no_host_sync(compile_env):
 def test_cuda_collector_and_ppo_iteration_stay_on_the_gpu():
     from torchrl.collectors import Collector
 
-    from truckrl.agent.config import ModelConfig, PPOConfig
-    from truckrl.agent.network import make_actor_critic
-    from truckrl.agent.ppo import PPO
     from truckrl.env import TruckEnv
+    from truckrl.rl.config import ModelConfig, PPOConfig
+    from truckrl.rl.network import make_actor_critic
+    from truckrl.rl.ppo import PPO
 
     env = TruckEnv(num_envs=128, device="cuda", seed=0)
     ac = make_actor_critic(ModelConfig(), 26, 16)
@@ -147,11 +147,11 @@ def test_cuda_collector_and_ppo_iteration_stay_on_the_gpu():
 def test_cuda_demonstrations_plan_and_clone_on_the_gpu():
     """experiment=gpu_demos' start: the planner plans on the GPU and the cloned actor stays there
     (ran on an H100 inside a whole run, README, Benchmarks, GPU)."""
-    from truckrl.agent.config import ModelConfig
-    from truckrl.agent.imitation import bootstrap
-    from truckrl.agent.network import make_actor_critic
-    from truckrl.configs import DemosConfig
-    from truckrl.task import EnvConfig
+    from truckrl.config.schemas import DemosConfig
+    from truckrl.rl.config import ModelConfig
+    from truckrl.rl.imitation import bootstrap
+    from truckrl.rl.network import make_actor_critic
+    from truckrl.tasks import EnvConfig
 
     ac = make_actor_critic(ModelConfig(), 26, 16)
     ac.model.to("cuda")

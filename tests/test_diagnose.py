@@ -1,4 +1,4 @@
-"""``python -m truckrl.diagnose`` and its parts: which body touched what, the trailer's depth into
+"""``python -m truckrl.tools.diagnose`` and its parts: which body touched what, the trailer's depth into
 the branch, and the per-episode record of a scripted drive whose outcome is known in advance."""
 
 import math
@@ -6,12 +6,12 @@ import math
 import pytest
 import torch
 
-from tests.agent.test_uturn_driver import FIXED_TRUCK
-from truckrl.agent.diagnosis import diagnose_uturn, summarize_diagnosis, trailer_depth
-from truckrl.diagnose import main
+from tests.rl.test_uturn_driver import FIXED_TRUCK
 from truckrl.sim.collision import touching
-from truckrl.sim.uturn_scene import DEAD_END_SLOT, SEGMENT_NAMES
-from truckrl.task import EnvConfig
+from truckrl.tasks import EnvConfig
+from truckrl.tasks.uturn.diagnosis import diagnose_uturn, summarize_diagnosis, trailer_depth
+from truckrl.tasks.uturn.scene import DEAD_END_SLOT, SEGMENT_NAMES
+from truckrl.tools.diagnose import main
 
 # FIXED_TRUCK (wheelbase 3.8, overhangs 1.4 / 0.9, kingpin 0, trailer 8.5 + 1.25 / 2.25),
 # straight, rear axle at the origin heading +x: tractor from x = -0.9 to 3.8 + 1.4 = 5.2, half

@@ -9,11 +9,11 @@ import torch
 from torchrl.envs import ParallelEnv
 from torchrl.envs.utils import check_env_specs
 
+from truckrl.config.fields import ConfigError
 from truckrl.env import TruckEnv
 from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES
-from truckrl.sim.validation import ConfigError
 from truckrl.sim.vehicle import truck_corners
-from truckrl.task import NUM_FEATURES, EnvConfig
+from truckrl.tasks import NUM_FEATURES, EnvConfig
 
 
 def make(n=4, seed=0, **cfg):

@@ -8,22 +8,22 @@ import json
 import pytest
 import torch
 
-import truckrl.agent.rollout as rollout_module
 import truckrl.evaluate as evaluate_module
+import truckrl.evaluation.rollout as rollout_module
 from tests.conftest import run_cli
-from truckrl.agent.categories import (
+from truckrl.config.fields import ConfigError
+from truckrl.config.schemas import EvaluateConfig
+from truckrl.evaluate import evaluate
+from truckrl.evaluation.categories import (
     TRAILER_DIM,
     episode_bins,
     scene_info,
     summarize_by_category,
 )
-from truckrl.agent.checkpoint import CheckpointError
-from truckrl.agent.rollout import evaluate_policy
-from truckrl.configs import EvaluateConfig
-from truckrl.evaluate import evaluate
-from truckrl.sim.scene import ROUTE_KEYS, generate_scenes
-from truckrl.sim.validation import ConfigError
+from truckrl.evaluation.rollout import evaluate_policy
+from truckrl.rl.checkpoint import CheckpointError
 from truckrl.sim.vehicle import sample_vehicle_params
+from truckrl.tasks.intersection.scene import ROUTE_KEYS, generate_scenes
 
 MAX_STEPS = 40  # the tiny checkpoint's env.max_steps
 SCENE_KEYS = (*ROUTE_KEYS, "trailer_length")
@@ -153,8 +153,8 @@ def test_env_overrides_change_the_scenes_of_this_evaluation_only(tiny_checkpoint
     ],
 )  # fmt: skip
 def test_bad_env_overrides_are_one_line(override, message):
-    from truckrl.task import EnvConfig
-    from truckrl.task.config import with_env_overrides
+    from truckrl.tasks import EnvConfig
+    from truckrl.tasks.config import with_env_overrides
 
     with pytest.raises(ConfigError) as e:
         with_env_overrides(EnvConfig(), override, fixed=True)
@@ -162,8 +162,8 @@ def test_bad_env_overrides_are_one_line(override, message):
 
 
 def test_env_overrides_merge_into_the_rest():
-    from truckrl.task import EnvConfig
-    from truckrl.task.config import flat_overrides, with_env_overrides
+    from truckrl.tasks import EnvConfig
+    from truckrl.tasks.config import flat_overrides, with_env_overrides
 
     base = EnvConfig()
     got = with_env_overrides(
@@ -246,7 +246,7 @@ def test_planner_policy_plays_the_checkpoints_scenes_and_writes_beside_the_run(
 ):
     """``policy=planner`` plans the scenes the checkpoint is scored on (same env config, seed and
     difficulty): its per-route counts equal the policy's, and the JSON lands beside the run."""
-    import truckrl.agent.planner as planner_module
+    import truckrl.planning.planner as planner_module
 
     run, _, _ = tiny_checkpoint
     small = planner_module.PlannerConfig(compile=False, samples=8, iterations=1)

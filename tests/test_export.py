@@ -10,9 +10,9 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from tests.conftest import run_cli
+from truckrl.config.fields import ConfigError
 from truckrl.env import TruckEnv
 from truckrl.export import CARD_KEY, ExportConfig, export, observation_table
-from truckrl.sim.validation import ConfigError
 
 
 def random_inputs(n: int, num_obs: int, num_beams: int, seed: int = 0):

@@ -9,7 +9,7 @@ from __future__ import annotations
 import pytest
 
 from tests.conftest import run_cli
-from truckrl.agent.checkpoint import load_training_state
+from truckrl.rl.checkpoint import load_training_state
 
 #: Frames in which ``python -m truckrl.train`` (default config, experiment=demos: planner
 #: demonstrations, cloning, PPO that keeps cloning them) must reach difficulty 2, counted after

@@ -1,14 +1,14 @@
-"""``python -m truckrl.paths`` and its parts: recorded paths, the scene filter, the drawing."""
+"""``python -m truckrl.tools.paths`` and its parts: recorded paths, the scene filter, the drawing."""
 
 import numpy as np
 import pytest
 import torch
 
-from truckrl.agent.planner import held_out_states
-from truckrl.agent.policy import load_policy
-from truckrl.agent.rollout import evaluate_policy
-from truckrl.paths import main, select
-from truckrl.task import EnvConfig
+from truckrl.evaluation.rollout import evaluate_policy
+from truckrl.planning.planner import held_out_states
+from truckrl.rl.policy import load_policy
+from truckrl.tasks import EnvConfig
+from truckrl.tools.paths import main, select
 from truckrl.viz.draw import make_view, world_to_pixel
 from truckrl.viz.paths import PATH_COLOR, draw_path, grid
 

@@ -1,4 +1,4 @@
-"""``python -m truckrl.play`` and ``truckrl.runner``: keys, frame loop, policy, video, window.
+"""``python -m truckrl.play`` and ``truckrl.viewer.runner``: keys, frame loop, policy, video, window.
 
 Expected motion is hand-computed from the control law (``v_k = k * max_accel * dt`` under full
 acceleration, ``steer_k = -k * max_steer_rate * dt`` under full right steer rate, set-points moving
@@ -18,17 +18,17 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from tests.conftest import TINY_TRAIN, compose_config, run_cli
-from truckrl.agent.checkpoint import load_checkpoint
-from truckrl.agent.network import ModelConfig, make_actor_critic
-from truckrl.agent.policy import saved_config
 from truckrl.cli import to_config
-from truckrl.configs import PlayConfig
+from truckrl.config.fields import ConfigError, build
+from truckrl.config.schemas import PlayConfig
 from truckrl.env import TruckEnv
 from truckrl.play import build_runner, play
-from truckrl.runner import LoopResult, Runner, run_loop
+from truckrl.rl.checkpoint import load_checkpoint
+from truckrl.rl.network import ModelConfig, make_actor_critic
+from truckrl.rl.policy import saved_config
 from truckrl.sim.control import ControlConfig
-from truckrl.sim.validation import ConfigError, build
-from truckrl.task import EnvConfig
+from truckrl.tasks import EnvConfig
+from truckrl.viewer.runner import LoopResult, Runner, run_loop
 from truckrl.viz.keyboard import (
     Command,
     KeyboardConfig,
@@ -356,7 +356,7 @@ def test_pygame_window_runs_with_posted_keys(monkeypatch):
 
 
 # ---------------------------------------------------------------------------------- reversing
-REVERSE_TASK = {"name": "tests.task.reverse_reach_task"}
+REVERSE_TASK = {"name": "tests.tasks.reverse_reach_task"}
 
 
 def _hud_text(runner: Runner) -> list[str]:

@@ -8,8 +8,8 @@ import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from truckrl.env import TruckEnv
-from truckrl.run_logger import STRIP_HEIGHT, RunLogger, VideoSchedule, record_episode
-from truckrl.runner import PolicySource, Runner, ViewConfig
+from truckrl.rl.logger import STRIP_HEIGHT, RunLogger, VideoSchedule, record_episode
+from truckrl.viewer.runner import PolicySource, Runner, ViewConfig
 from truckrl.viz.video import probe_video
 
 

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from truckrl.env import TruckEnv
-from truckrl.runner import (
+from truckrl.sim.vehicle import truck_corners
+from truckrl.tasks import EnvConfig
+from truckrl.viewer.runner import (
     KeyboardSource,
     PolicySource,
     RandomSource,
@@ -15,8 +17,6 @@ from truckrl.runner import (
     ViewConfig,
     run_loop,
 )
-from truckrl.sim.vehicle import truck_corners
-from truckrl.task import EnvConfig
 from truckrl.viz.draw import make_view, world_to_pixel
 from truckrl.viz.keyboard import KeyboardConfig, KeyInput
 

@@ -16,12 +16,12 @@ import yaml
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from tests.conftest import ROOT, TINY_BATCH, TINY_TRAIN, compose_config, run_cli
-from truckrl.agent.checkpoint import load_checkpoint
-from truckrl.agent.collection import make_env, set_difficulty
 from truckrl.cli import to_config
-from truckrl.configs import TrainConfig
-from truckrl.sim.validation import ConfigError
-from truckrl.task import EnvConfig
+from truckrl.config.fields import ConfigError
+from truckrl.config.schemas import TrainConfig
+from truckrl.rl.checkpoint import load_checkpoint
+from truckrl.rl.collection import make_env, set_difficulty
+from truckrl.tasks import EnvConfig
 
 BATCH = TINY_BATCH
 pytestmark = pytest.mark.e2e

@@ -46,7 +46,7 @@ def test_wheel_installs_in_a_fresh_venv_and_runs_from_elsewhere(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     for name in ("train", "evaluate", "play", "export", "control/accel_rate", "experiment/fast"):
         assert f"truckrl/conf/{name}.yaml" in names, name
-    assert "truckrl/pretrained/intersection.pt" in names  # checkpoint=pretrained
+    assert "truckrl/tasks/intersection/pretrained.pt" in names  # checkpoint=pretrained
     times["build"] = time.monotonic() - t0
 
     t0 = time.monotonic()

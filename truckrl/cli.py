@@ -78,8 +78,8 @@ class OneLineArgParser(argparse.ArgumentParser):
 def run_or_fail(run: Callable[[Any], Any], args: Any) -> int:
     """Call ``run(args)``; what a user can cause (``ConfigError``, ``CheckpointError``) prints one
     line ``error: ...`` on stderr and returns 2, else 0."""
-    from truckrl.agent.checkpoint import CheckpointError
-    from truckrl.sim.validation import ConfigError
+    from truckrl.config.fields import ConfigError
+    from truckrl.rl.checkpoint import CheckpointError
 
     try:
         run(args)
@@ -96,8 +96,8 @@ def check_scene_options(args: argparse.Namespace) -> None:
     Raises:
         ConfigError: one line naming the option and its allowed range.
     """
-    from truckrl.sim.validation import ConfigError
-    from truckrl.task import MAX_DIFFICULTY
+    from truckrl.config.fields import ConfigError
+    from truckrl.tasks import MAX_DIFFICULTY
 
     if not 1 <= args.episodes <= 100_000:
         raise ConfigError(f"--episodes = {args.episodes} must be in [1, 100000]")
@@ -113,7 +113,7 @@ def to_config(schema: type[T], cfg: Any) -> T:
     """The composed Hydra config (or a plain dict) as a validated ``schema`` instance."""
     from omegaconf import OmegaConf
 
-    from truckrl.sim.validation import build
+    from truckrl.config.fields import build
 
     data = OmegaConf.to_container(cfg, resolve=True) if OmegaConf.is_config(cfg) else dict(cfg)
     data.pop("hydra", None)
@@ -129,8 +129,8 @@ def compose_config(config_name: str, schema: type[T], overrides: list[str]) -> T
     """
     from hydra import compose, initialize_config_dir
 
-    from truckrl.configs import register
-    from truckrl.sim.validation import ConfigError
+    from truckrl.config.fields import ConfigError
+    from truckrl.config.schemas import register
 
     register()
     try:
@@ -188,7 +188,7 @@ def hydra_entry(
 
     Args:
         config_name: the primary config ``conf/<name>.yaml`` (and help ``hydra/help/<name>``).
-        schema: the config dataclass, or its name in :mod:`truckrl.configs` (imported only once
+        schema: the config dataclass, or its name in :mod:`truckrl.config.schemas` (imported only once
             ``--help`` is ruled out).
         prepare: optional check/rewrite of the command-line arguments before Hydra runs (may
             raise ``ConfigError`` / ``CheckpointError``), or its ``"module:function"`` name.
@@ -227,16 +227,16 @@ def _function(f: Callable | str) -> Callable:
 
 def _schema(schema: type | str) -> type:
     if isinstance(schema, str):
-        import truckrl.configs
+        import truckrl.config.schemas
 
-        return getattr(truckrl.configs, schema)
+        return getattr(truckrl.config.schemas, schema)
     return schema
 
 
 def _hydra_main(config_name: str, cls: type, fn: Callable) -> Callable[[], None]:
     import hydra
 
-    from truckrl.configs import register
+    from truckrl.config.schemas import register
 
     register()
 
@@ -261,8 +261,8 @@ def one_line_errors(in_task: bool = False) -> Iterator[None]:
     through ``hydra._internal.utils.run_and_report`` (a multi-line message and exit 1), which is
     wrapped here for the duration of the block.
     """
-    from truckrl.agent.checkpoint import CheckpointError
-    from truckrl.sim.validation import ConfigError
+    from truckrl.config.fields import ConfigError
+    from truckrl.rl.checkpoint import CheckpointError
 
     patched = None if in_task else _wrap_run_and_report()
     try:
@@ -421,7 +421,7 @@ def describe_field_error(e: Any) -> str:
         hint = f" (did you mean {parent + '.' if parent else ''}{close[0]}?)" if close else ""
         where = parent or "the top level"
         return (
-            f"unknown field {key}{hint}; python -m truckrl.configs {parent} lists the fields "
+            f"unknown field {key}{hint}; python -m truckrl.config.schemas {parent} lists the fields "
             f"of {where}"
         ).replace("configs  lists", "configs lists")
     hint, spec = field_spec(key)
@@ -429,7 +429,7 @@ def describe_field_error(e: Any) -> str:
         first = dataclasses.fields(hint)[0].name
         return (
             f"{key} = {value!r}: {key} is a group of fields, not a value; set a field such as "
-            f"{key}.{first}=... (python -m truckrl.configs {key} lists them)"
+            f"{key}.{first}=... (python -m truckrl.config.schemas {key} lists them)"
         )
     return f"{key} = {value!r} is not allowed: {accepted(hint, spec)}"
 
@@ -442,7 +442,7 @@ def _known_fields(dotted: str) -> list[str]:
 def _root() -> type:
     if _SCHEMA:
         return _SCHEMA[0]
-    from truckrl.configs import TrainConfig
+    from truckrl.config.schemas import TrainConfig
 
     return TrainConfig
 
@@ -453,7 +453,7 @@ def field_spec(dotted: str, root: type | None = None) -> tuple[Any, Any]:
     ``env.task``. ``(None, None)`` when unknown."""
     import re
 
-    from truckrl.task import TaskConfig, task_class, task_names
+    from truckrl.tasks import TaskConfig, task_class, task_names
 
     parts = re.sub(r"\[\d+\]", "", dotted).split(".")
     candidates: list[type] = [root or _root()]

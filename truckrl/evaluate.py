@@ -7,12 +7,12 @@ gives the same scenes, so checkpoints are compared on identical tasks) at ``diff
 the checkpoint's curriculum difficulty), with the env config saved in the checkpoint. Prints the
 outcome rates and mean / p95 final errors, then the same per scene category (intersection: route,
 turn angle split left / right, crossing angle, trailer length, road width, goal distance; other
-tasks: their ``category_dims``; see :mod:`truckrl.agent.categories`), then everything as one line of JSON (the category rows under
+tasks: their ``category_dims``; see :mod:`truckrl.evaluation.categories`), then everything as one line of JSON (the category rows under
 ``"categories"``), and writes that JSON to ``output``: by default
 ``<run dir of the checkpoint>/eval/<difficulty>-<seed>.json``, beside the evaluated run. The
 output location is checked before any episode runs; if the write still fails at the end, the
 results are printed first and the error after them. Fields: ``EvaluateConfig`` in
-``truckrl/configs.py``.
+``truckrl/config/schemas.py``.
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ from omegaconf import DictConfig
 from truckrl.cli import hydra_entry
 
 if TYPE_CHECKING:
-    from truckrl.configs import EvaluateConfig
-    from truckrl.task import Quantity
+    from truckrl.config.schemas import EvaluateConfig
+    from truckrl.tasks import Quantity
 
 #: Folder of a run dir that default evaluation outputs go to.
 EVAL_DIR = "eval"
@@ -42,14 +42,14 @@ def default_output(
 ) -> Path:
     """``<run dir>/eval/<difficulty>-<seed>.json`` (difficulty as ``2`` or ``2.5``); with env
     overrides, ``<difficulty>-<seed>-<field>=<value>[-...].json``."""
-    from truckrl.agent.session import run_dir_of
+    from truckrl.rl.session import run_dir_of
 
     return run_dir_of(checkpoint) / EVAL_DIR / f"{difficulty:g}-{seed}{_tag(env_overrides)}.json"
 
 
 def _tag(env_overrides: dict | None) -> str:
     """``-<field>=<value>`` per env override, for file names ('' without any)."""
-    from truckrl.task.config import flat_overrides
+    from truckrl.tasks.config import flat_overrides
 
     flat = flat_overrides(env_overrides or {})
     tag = "".join(f"-{k.removeprefix('env.')}={v}" for k, v in flat.items())
@@ -62,7 +62,7 @@ def check_writable(path: Path) -> None:
     The JSON is written by replacing ``path`` with a file made in the same folder, so a writable
     folder is what the final write needs.
     """
-    from truckrl.sim.validation import ConfigError
+    from truckrl.config.fields import ConfigError
 
     try:
         if path.is_dir():
@@ -94,7 +94,7 @@ PLANNER_DIFFICULTY = 6.0
 def evaluate(ec: EvaluateConfig) -> dict:
     """Load, check the output, run, summarise, print and write; return the JSON-ready result.
 
-    With ``policy=planner`` the CEM planner (:mod:`truckrl.agent.planner`) plays the same scenes
+    With ``policy=planner`` the CEM planner (:mod:`truckrl.planning.planner`) plays the same scenes
     instead of the checkpoint's policy: with the checkpoint's env config and difficulty when one
     is given (a side-by-side comparison), else the default env at difficulty 6; its JSON goes to
     ``planner-<difficulty>-<seed>.json`` (beside the run, or under ``outputs/eval/``).
@@ -104,14 +104,18 @@ def evaluate(ec: EvaluateConfig) -> dict:
         ConfigError: the output cannot be written: before any episode runs when the check finds
             it, or after printing the results when the final write fails.
     """
-    from truckrl.agent.checkpoint import resolve_checkpoint
+    from truckrl.rl.checkpoint import resolve_checkpoint
 
     if ec.checkpoint:
         resolve_checkpoint(ec.checkpoint)  # a wrong path is reported before torchrl loads
 
-    from truckrl.agent.categories import format_category_table, summarize_by_category, task_bins
-    from truckrl.agent.rollout import summarize
-    from truckrl.sim.validation import ConfigError
+    from truckrl.config.fields import ConfigError
+    from truckrl.evaluation.categories import (
+        format_category_table,
+        summarize_by_category,
+        task_bins,
+    )
+    from truckrl.evaluation.rollout import summarize
 
     if ec.policy == "planner":
         summary_head, results, (tol_pos, tol_deg), errors, output, task = _run_planner(ec)
@@ -148,9 +152,9 @@ def evaluate(ec: EvaluateConfig) -> dict:
 def _run_checkpoint(ec: EvaluateConfig):
     """The checkpoint's mean action on the scenes: ``(head, results, tolerance, errors, output,
     task name)``."""
-    from truckrl.agent.policy import load_policy
-    from truckrl.agent.rollout import evaluate_policy
-    from truckrl.task.config import flat_overrides, with_env_overrides
+    from truckrl.evaluation.rollout import evaluate_policy
+    from truckrl.rl.policy import load_policy
+    from truckrl.tasks.config import flat_overrides, with_env_overrides
 
     policy = load_policy(ec.checkpoint, ec.device)
     env_cfg = with_env_overrides(policy.env_config, ec.env, fixed=True)
@@ -175,8 +179,8 @@ def _run_checkpoint(ec: EvaluateConfig):
 
 def planner_config():
     """The planner's settings for ``policy=planner``: the defaults of
-    :class:`~truckrl.agent.planner.PlannerConfig` (the README's baseline)."""
-    from truckrl.agent.planner import PlannerConfig
+    :class:`~truckrl.planning.planner.PlannerConfig` (the README's baseline)."""
+    from truckrl.planning.planner import PlannerConfig
 
     return PlannerConfig()
 
@@ -185,12 +189,12 @@ def _run_planner(ec: EvaluateConfig):
     """The planner on the scenes: ``(head, results, tolerance, errors, output, task name)``."""
     import time
 
-    from truckrl.agent.planner import plan_episodes
-    from truckrl.task import EnvConfig
-    from truckrl.task.config import flat_overrides, with_env_overrides
+    from truckrl.planning.planner import plan_episodes
+    from truckrl.tasks import EnvConfig
+    from truckrl.tasks.config import flat_overrides, with_env_overrides
 
     if ec.checkpoint:
-        from truckrl.agent.policy import load_policy
+        from truckrl.rl.policy import load_policy
 
         policy = load_policy(ec.checkpoint, "cpu")
         env_cfg, path = policy.env_config, policy.path
@@ -221,7 +225,7 @@ def _run_planner(ec: EvaluateConfig):
 
 
 def print_table(s: dict, errors: tuple[Quantity, ...]) -> None:
-    from truckrl.task import OUTCOMES
+    from truckrl.tasks import OUTCOMES
 
     print(
         f"{s['episodes']} episodes at difficulty {s['difficulty']} "

@@ -42,17 +42,17 @@ import torch
 from omegaconf import DictConfig
 from torch import Tensor, nn
 
-from truckrl.agent.network import GaussianHead, TwoBranchTrunk
-from truckrl.agent.policy import LoadedPolicy, load_policy
-from truckrl.agent.session import run_dir_of
 from truckrl.cli import hydra_entry
-from truckrl.configs import structured
+from truckrl.config.fields import ConfigError, param, validate
+from truckrl.config.schemas import structured
+from truckrl.rl.network import GaussianHead, TwoBranchTrunk
+from truckrl.rl.policy import LoadedPolicy, load_policy
+from truckrl.rl.session import run_dir_of
 from truckrl.sim.control import commanded
 from truckrl.sim.lidar import beam_angles
-from truckrl.sim.validation import ConfigError, param, validate
-from truckrl.task import EnvConfig, make_task
-from truckrl.task.base import OBSERVED_PARAMS
-from truckrl.task.config import SENSOR_SCALE
+from truckrl.tasks import EnvConfig, make_task
+from truckrl.tasks.base import OBSERVED_PARAMS
+from truckrl.tasks.config import SENSOR_SCALE
 
 FORMATS = ("onnx", "torchscript")
 SUFFIX = {"onnx": ".onnx", "torchscript": ".pt"}

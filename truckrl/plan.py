@@ -4,9 +4,9 @@
 
 Plans each of the ``--episodes`` scenes that ``python -m truckrl.evaluate episodes=N seed=S``
 scores (same seed and count, same scenes) with the CEM planner of
-:mod:`truckrl.agent.planner`, confirms every plan by replaying it through a fresh ``TruckEnv``,
+:mod:`truckrl.planning.planner`, confirms every plan by replaying it through a fresh ``TruckEnv``,
 and prints the outcome rates, the final errors and the per-category table
-(:mod:`truckrl.agent.categories`). The JSON (default ``outputs/plan/<date>/<time>/plan.json``)
+(:mod:`truckrl.evaluation.categories`). The JSON (default ``outputs/plan/<date>/<time>/plan.json``)
 holds the summary, the category rows, the timing and, per episode, its route, vehicle, outcome,
 errors and the action sequence (replay it with ``TruckEnv.set_state`` and ``step``).
 
@@ -19,7 +19,7 @@ policy alone and either, overall and per category.
 
 ``--env KEY=VALUE`` overrides an env config field (``max_steps=300``,
 ``task.scene.road_width=[14,18]``, ``control.lateral=angle``; values in YAML), ``--planner
-KEY=VALUE`` a :class:`~truckrl.agent.planner.PlannerConfig` field. Bad options print one line and
+KEY=VALUE`` a :class:`~truckrl.planning.planner.PlannerConfig` field. Bad options print one line and
 exit with code 2.
 """
 
@@ -38,13 +38,13 @@ from typing import Any
 import torch
 import yaml
 
-from truckrl.agent.categories import format_category_table, summarize_by_category, task_bins
-from truckrl.agent.planner import PlannerConfig, category_info, plan_episodes
-from truckrl.agent.rollout import summarize
 from truckrl.cli import OneLineArgParser, git_revision, run_or_fail
-from truckrl.sim.scene import ROUTE_KEYS, ROUTE_NAMES
-from truckrl.sim.validation import ConfigError, build, check_range
-from truckrl.task import MAX_DIFFICULTY, OUTCOMES, EnvConfig
+from truckrl.config.fields import ConfigError, build, check_range
+from truckrl.evaluation.categories import format_category_table, summarize_by_category, task_bins
+from truckrl.evaluation.rollout import summarize
+from truckrl.planning.planner import PlannerConfig, category_info, plan_episodes
+from truckrl.tasks import MAX_DIFFICULTY, OUTCOMES, EnvConfig
+from truckrl.tasks.intersection.scene import ROUTE_KEYS, ROUTE_NAMES
 
 #: ``--route`` names (spaces as underscores) -> route value.
 ROUTES = {name.replace(" ", "_"): i for i, name in enumerate(ROUTE_NAMES)}
@@ -115,7 +115,7 @@ def parser() -> argparse.ArgumentParser:
 
 def configure(args: argparse.Namespace) -> tuple[EnvConfig, PlannerConfig, Any]:
     """Validate the options; raise :class:`ConfigError` naming the bad one (a bad ``--policy``:
-    :class:`~truckrl.agent.checkpoint.CheckpointError`).
+    :class:`~truckrl.rl.checkpoint.CheckpointError`).
 
     Returns:
         ``(env config, planner config, the loaded --policy or None)``.
@@ -131,8 +131,8 @@ def configure(args: argparse.Namespace) -> tuple[EnvConfig, PlannerConfig, Any]:
         raise ConfigError(f"--device = {args.device!r}: not available (cpu, or cuda with a GPU)")
     policy = None
     if args.policy:
-        from truckrl.agent.policy import load_policy
-        from truckrl.task.config import with_env_overrides
+        from truckrl.rl.policy import load_policy
+        from truckrl.tasks.config import with_env_overrides
 
         policy = load_policy(args.policy, args.device)
         env_cfg = with_env_overrides(policy.env_config, _overrides(args.env, "env"), fixed=True)
@@ -160,7 +160,7 @@ def run(args: argparse.Namespace) -> dict:
     torch.set_num_threads(args.threads)
     indices = None
     if args.route:
-        from truckrl.agent.planner import held_out_states
+        from truckrl.planning.planner import held_out_states
 
         route = held_out_states(env_cfg, args.episodes, args.seed, args.device, args.difficulty)
         route = route["route", "route"]

@@ -6,7 +6,7 @@
     python -m truckrl.play headless=true checkpoint=<run> record=run.mp4   # no window: to video
     python -m truckrl.play headless=true actions=docs/play_keys.txt strip=docs/play_strip.png
 
-One frame loop (:func:`truckrl.runner.run_loop` over a :class:`~truckrl.runner.Runner`) serves every way of driving: an *action
+One frame loop (:func:`truckrl.viewer.runner.run_loop` over a :class:`~truckrl.viewer.runner.Runner`) serves every way of driving: an *action
 source* turns the current observation and the held keys into the env action; the keyboard
 (:class:`truckrl.viz.keyboard.KeyMapper`), a policy (mean action of a checkpoint), a replayed
 ``.npy`` action array and a random policy are interchangeable sources. The env is the training
@@ -20,7 +20,7 @@ neither a checkpoint nor actions drives one episode with uniform random actions.
 
 With a checkpoint, the env and control config come from the checkpoint (the policy was trained
 for them); ``seed``, ``difficulty`` (default: the checkpoint's curriculum difficulty) and
-``device`` come from the command line. Fields: ``PlayConfig`` in ``truckrl/configs.py``. Exit code 2 with a one-line
+``device`` come from the command line. Fields: ``PlayConfig`` in ``truckrl/config/schemas.py``. Exit code 2 with a one-line
 message for a bad config, a missing or corrupt checkpoint, or a bad actions file.
 """
 
@@ -37,8 +37,8 @@ from truckrl.cli import hydra_entry
 if TYPE_CHECKING:  # torch, TorchRL and OpenCV load on use: `--help` answers before them
     import numpy as np
 
-    from truckrl.configs import PlayConfig
-    from truckrl.runner import LoopResult, Runner
+    from truckrl.config.schemas import PlayConfig
+    from truckrl.viewer.runner import LoopResult, Runner
     from truckrl.viz.keyboard import KeyInput
 
 
@@ -51,7 +51,7 @@ def load_actions(path: str | os.PathLike) -> np.ndarray | list[KeyInput]:
     """
     import numpy as np
 
-    from truckrl.sim.validation import ConfigError
+    from truckrl.config.fields import ConfigError
     from truckrl.viz.keyboard import parse_key_script
 
     p = Path(path)
@@ -77,8 +77,8 @@ def check_output(field: str, path: str | None) -> None:
     Raises:
         ConfigError: one line naming the field, the path and the reason.
     """
-    from truckrl.agent.session import check_dir_usable
-    from truckrl.sim.validation import ConfigError
+    from truckrl.config.fields import ConfigError
+    from truckrl.rl.session import check_dir_usable
 
     if not path:
         return
@@ -95,9 +95,15 @@ def build_runner(pc: PlayConfig) -> tuple[Runner, Any, float, str]:
     """Env, sources and input for a validated config: ``(runner, input, fps, description)``."""
     import numpy as np
 
-    from truckrl.agent.policy import load_policy
     from truckrl.env import TruckEnv
-    from truckrl.runner import ArraySource, KeyboardSource, PolicySource, RandomSource, Runner
+    from truckrl.rl.policy import load_policy
+    from truckrl.viewer.runner import (
+        ArraySource,
+        KeyboardSource,
+        PolicySource,
+        RandomSource,
+        Runner,
+    )
     from truckrl.viz.keyboard import NoKeys, ScriptedKeys
 
     actor = None
@@ -138,8 +144,8 @@ def build_runner(pc: PlayConfig) -> tuple[Runner, Any, float, str]:
 
 def play(pc: PlayConfig, key_state=None) -> LoopResult:
     """Run the viewer (window, or headless) until quit, the input ends or a limit is reached."""
-    from truckrl.runner import CombinedInput, StripSink, run_loop
-    from truckrl.sim.validation import ConfigError
+    from truckrl.config.fields import ConfigError
+    from truckrl.viewer.runner import CombinedInput, StripSink, run_loop
     from truckrl.viz.keyboard import ScriptedKeys
     from truckrl.viz.video import Mp4Writer, frame_strip, write_png
 

@@ -5,7 +5,7 @@
     python -m truckrl.train --help                                    # options and examples
 
 Each iteration collects ``collector.workers x num_envs x steps_per_env`` frames, feeds finished
-episodes to the curriculum in start order (:mod:`truckrl.agent.cohorts`; a promotion reaches
+episodes to the curriculum in start order (:mod:`truckrl.rl.cohorts`; a promotion reaches
 every worker before the next collection), runs the PPO update and logs to ``<run_dir>/tb``.
 ``<run_dir>/checkpoints/last.pt`` is written every ``checkpoint.interval`` iterations and at the
 end; ``best.pt`` after each held-out evaluation that beats every earlier one (higher difficulty,
@@ -13,7 +13,7 @@ or the same difficulty and a higher success rate; ``checkpoint.keep_best``). A r
 ``stop_difficulty`` (6, the paper's goal, in ``experiment=fast``; none in the default
 ``experiment=demos``, which trains on at 6), ``max_minutes`` (60),
 ``total_frames`` or a signal (at the next iteration boundary, with a checkpoint, exit 0;
-:mod:`truckrl.agent.session`); its last lines say why and what to run next.
+:mod:`truckrl.rl.session`); its last lines say why and what to run next.
 
 ``train_env.FIELD=VALUE`` changes the env of the training envs only (a training scene mix,
 e.g. ``train_env.task.scene.crossing_prob=1.0``); held-out checks, ``best.pt`` and evaluating
@@ -25,7 +25,7 @@ setting); its optimizer, curriculum and counters are not used, so give the diffi
 at as ``curriculum.start_difficulty``.
 
 Resuming (``resume=<checkpoint or run dir>``) continues in the original run dir with the
-checkpoint's state and saved config but for :data:`~truckrl.configs.RESUME_OVERRIDES` (from the
+checkpoint's state and saved config but for :data:`~truckrl.config.schemas.RESUME_OVERRIDES` (from the
 command line); an older checkpoint branches into a new run dir. ``total_frames`` counts all
 sessions, ``max_minutes`` this one. The envs restart with fresh episodes seeded from ``(seed,
 iteration)``: a faithful continuation, not a bit-identical one.
@@ -49,7 +49,7 @@ log = logging.getLogger("truckrl.train")
 def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None = None,
           stop: Any = None, init: dict | None = None) -> Any:  # fmt: skip
     """Run (or, with a loaded checkpoint ``state``, resume) one training job; return its counters.
-    ``stop``: installed :class:`~truckrl.agent.session.StopSignals` (:func:`run` installs them).
+    ``stop``: installed :class:`~truckrl.rl.session.StopSignals` (:func:`run` installs them).
     ``init``: a loaded checkpoint whose network weights start a new run (``tc.init``; ignored
     when resuming).
 
@@ -59,25 +59,25 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     # Heavy imports here, not at module level: `--help` and config errors answer before they load
     import yaml
 
-    from truckrl.agent import checkpoint as ckpt
-    from truckrl.agent.cohorts import StartOrderFeed
-    from truckrl.agent.collection import (
+    from truckrl.cli import git_revision, seed_everything
+    from truckrl.evaluation.heldout import heldout_due, heldout_scalars
+    from truckrl.rl import checkpoint as ckpt
+    from truckrl.rl.cohorts import StartOrderFeed
+    from truckrl.rl.collection import (
         check_difficulty,
         make_collector,
         make_env,
         set_difficulty,
     )
-    from truckrl.agent.curriculum import Curriculum
-    from truckrl.agent.heldout import heldout_due, heldout_scalars
-    from truckrl.agent.metrics import EpisodeTracker, hparam_metrics, iteration_scalars
-    from truckrl.agent.network import make_actor_critic, parameter_count
-    from truckrl.agent.ppo import PPO
-    from truckrl.agent.progress import Progress, stop_lines, stop_reason
-    from truckrl.agent.session import Counters, StopSignals, write_parent
-    from truckrl.cli import git_revision, seed_everything
-    from truckrl.run_logger import RunLogger, flatten
-    from truckrl.task import make_task
-    from truckrl.task.config import with_env_overrides
+    from truckrl.rl.curriculum import Curriculum
+    from truckrl.rl.logger import RunLogger, flatten
+    from truckrl.rl.metrics import EpisodeTracker, hparam_metrics, iteration_scalars
+    from truckrl.rl.network import make_actor_critic, parameter_count
+    from truckrl.rl.ppo import PPO
+    from truckrl.rl.progress import Progress, stop_lines, stop_reason
+    from truckrl.rl.session import Counters, StopSignals, write_parent
+    from truckrl.tasks import make_task
+    from truckrl.tasks.config import with_env_overrides
 
     cfg_yaml = yaml.safe_dump(asdict(tc), sort_keys=False)
     source = git_revision()  # once: checkpoints record the commit the session started from
@@ -226,7 +226,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
                     ac.actor, tc.env, curriculum.difficulty, tc.seed, tc.log.video_steps,
                     tc.device, counters.iteration, counters.frames, tc.log.video_fps,
                 )  # fmt: skip
-            # Held-out scenes every log.eval_interval_min minutes (truckrl/agent/heldout.py)
+            # Held-out scenes every log.eval_interval_min minutes (truckrl/evaluation/heldout.py)
             elapsed, window = time.monotonic() - session_start, time.perf_counter() - t0
             if heldout_due(tc.log.eval_interval_min, elapsed, window):
                 evals = heldout_scalars(
@@ -267,7 +267,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
 
 def bc_weight(dc: Any, frames: int) -> float:
     """The cloning term's weight after ``frames`` frames: ``dc.bc_coeff`` falling linearly to 0
-    at ``dc.bc_frames`` (:class:`~truckrl.configs.DemosConfig`)."""
+    at ``dc.bc_frames`` (:class:`~truckrl.config.schemas.DemosConfig`)."""
     return dc.bc_coeff * max(0.0, 1.0 - frames / dc.bc_frames)
 
 
@@ -281,8 +281,8 @@ def cloning_samples(
     writes one beside its checkpoint too). No samples is a one-line :class:`ConfigError`, before
     any training.
     """
-    from truckrl.agent.imitation import SAMPLES_NAME, load_samples, save_samples
-    from truckrl.sim.validation import ConfigError
+    from truckrl.config.fields import ConfigError
+    from truckrl.rl.imitation import SAMPLES_NAME, load_samples, save_samples
 
     if fresh is not None:
         save_samples(run_dir / SAMPLES_NAME, fresh)
@@ -309,8 +309,8 @@ def clone_demonstrations(ac: Any, tc: Any, env: Any) -> tuple[dict, Any]:
     """``demos.episodes`` planner (or scripted-driver) solutions cloned into ``ac``
     (:func:`imitation.bootstrap`); returns its summary and the samples. A demonstrator that
     solves nothing is a one-line :class:`ConfigError`."""
-    from truckrl.agent.imitation import bootstrap
-    from truckrl.sim.validation import ConfigError
+    from truckrl.config.fields import ConfigError
+    from truckrl.rl.imitation import bootstrap
 
     dc = tc.demos
     how = "planning" if dc.source == "planner" else "driving (scripted turnaround)"
@@ -335,11 +335,11 @@ def clone_demonstrations(ac: Any, tc: Any, env: Any) -> tuple[dict, Any]:
 
 
 def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
-    """Plan the session (run dir, resume or branch; :func:`~truckrl.agent.session.plan_session`)
+    """Plan the session (run dir, resume or branch; :func:`~truckrl.rl.session.plan_session`)
     and train; ``tc.resume``'s checkpoint supplies the config but for ``RESUME_OVERRIDES``."""
-    from truckrl.agent.checkpoint import load_training_state
-    from truckrl.agent.session import StopSignals, merged_config, plan_session
-    from truckrl.configs import RESUME_OVERRIDES, TrainConfig
+    from truckrl.config.schemas import RESUME_OVERRIDES, TrainConfig
+    from truckrl.rl.checkpoint import load_training_state
+    from truckrl.rl.session import StopSignals, merged_config, plan_session
 
     stop = StopSignals().install()  # from here on a signal stops at the next iteration boundary
     try:
@@ -354,9 +354,9 @@ def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
 
 def prepare_argv(argv: list[str]) -> list[str]:
     """``train_env.FIELD=VALUE`` as Hydra's ``+train_env.FIELD=VALUE`` (a key of a free-form
-    dict), then the run-dir checks of :func:`truckrl.agent.session.prepare_argv`."""
-    from truckrl.agent.session import prepare_argv as check_run_dir
+    dict), then the run-dir checks of :func:`truckrl.rl.session.prepare_argv`."""
     from truckrl.cli import plus_overrides
+    from truckrl.rl.session import prepare_argv as check_run_dir
 
     return check_run_dir(plus_overrides(argv, "train_env."))
 
@@ -366,7 +366,7 @@ def main(tc: Any, raw: Any) -> None:
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
 
-    from truckrl.agent.session import ignore_stop_signals
+    from truckrl.rl.session import ignore_stop_signals
 
     hc = HydraConfig.get()
     named = any(o.startswith("hydra.run.dir=") for o in hc.overrides.hydra)

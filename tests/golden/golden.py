@@ -122,9 +122,9 @@ def load_golden(path: Path) -> dict[str, np.ndarray]:
 
 def golden_ppo() -> dict[str, np.ndarray]:
     """Loss metrics and parameters after one PPO update on a fixed rollout."""
-    from truckrl.agent.network import ModelConfig, make_actor_critic
-    from truckrl.agent.ppo import PPO, PPOConfig
     from truckrl.env import TruckEnv
+    from truckrl.rl.network import ModelConfig, make_actor_critic
+    from truckrl.rl.ppo import PPO, PPOConfig
 
     torch.manual_seed(0)
     env = TruckEnv(num_envs=16, seed=3)

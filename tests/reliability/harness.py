@@ -18,9 +18,9 @@ from pathlib import Path
 import torch
 
 from tests.conftest import TINY_TRAIN, compose_config
-from truckrl.agent.checkpoint import load_checkpoint
 from truckrl.cli import to_config
-from truckrl.configs import TrainConfig
+from truckrl.config.schemas import TrainConfig
+from truckrl.rl.checkpoint import load_checkpoint
 
 SIGNALS = {"SIGINT": signal.SIGINT, "SIGTERM": signal.SIGTERM}
 
@@ -59,12 +59,12 @@ def assert_consistent(run_dir: Path, batch: int = BATCH) -> dict:
 
 #: Where a signal can be sent from inside a session, and the function patched to send it.
 PHASES = {
-    "start": ("truckrl.agent.collection", "make_env"),
+    "start": ("truckrl.rl.collection", "make_env"),
     "collect": ("truckrl.env.TruckEnv", "_step"),
     "update": ("torch.optim.Adam", "step"),
-    "curriculum": ("truckrl.agent.curriculum.Curriculum", "update"),
-    "save": ("truckrl.agent.checkpoint", "save_checkpoint"),
-    "log": ("truckrl.run_logger.RunLogger", "scalars"),
+    "curriculum": ("truckrl.rl.curriculum.Curriculum", "update"),
+    "save": ("truckrl.rl.checkpoint", "save_checkpoint"),
+    "log": ("truckrl.rl.logger.RunLogger", "scalars"),
 }
 
 

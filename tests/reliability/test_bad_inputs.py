@@ -29,11 +29,11 @@ from tests.reliability.harness import (
     run_session,
     tiny_config,
 )
-from truckrl.agent.checkpoint import load_checkpoint
-from truckrl.agent.network import ModelConfig, make_actor_critic
-from truckrl.agent.ppo import PPO, PPOConfig
 from truckrl.cli import one_line_errors
-from truckrl.sim.validation import ConfigError
+from truckrl.config.fields import ConfigError
+from truckrl.rl.checkpoint import load_checkpoint
+from truckrl.rl.network import ModelConfig, make_actor_critic
+from truckrl.rl.ppo import PPO, PPOConfig
 
 ENTRIES = ("train", "evaluate", "play")
 
@@ -177,17 +177,17 @@ def through(entry: str, path: Path, job_dir: Path) -> None:
     checkpoint, after Hydra's composition (the table's rows skip it: it costs ~1 s a row; the
     full command lines are checked below)."""
     if entry == "train":
-        from truckrl.agent.session import prepare_argv
+        from truckrl.rl.session import prepare_argv
         from truckrl.train import run
 
         prepare_argv([f"resume={path}"])
         run(dataclasses.replace(base_config(), resume=str(path)), job_dir, explicit_dir=False)
     elif entry == "evaluate":
-        from truckrl.agent.policy import load_policy
+        from truckrl.rl.policy import load_policy
 
         load_policy(path)
     else:
-        from truckrl.configs import PlayConfig
+        from truckrl.config.schemas import PlayConfig
         from truckrl.play import build_runner
 
         build_runner(PlayConfig(checkpoint=str(path), headless=True))
@@ -265,9 +265,9 @@ def test_bad_config_value_is_one_line(entry, override, fragments):
     """The message the command line prints (composition through Hydra's compose API; the full
     command line for a few rows below)."""
     import truckrl.cli as cli
-    import truckrl.configs
+    import truckrl.config.schemas
 
-    schema = getattr(truckrl.configs, SCHEMAS[entry])
+    schema = getattr(truckrl.config.schemas, SCHEMAS[entry])
     cli._SCHEMA[:] = [schema]
     try:
         cli.to_config(schema, compose_config(entry, override))

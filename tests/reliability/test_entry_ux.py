@@ -16,8 +16,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from tests.conftest import ROOT
 from tests.reliability.harness import BATCH, ENV, TINY, run_main, run_session
-from truckrl.agent.checkpoint import load_checkpoint
-from truckrl.agent.progress import Progress, stop_lines
+from truckrl.rl.checkpoint import load_checkpoint
+from truckrl.rl.progress import Progress, stop_lines
 
 
 @pytest.mark.parametrize(
@@ -156,4 +156,4 @@ def test_help_imports_no_torch(entry):
 def test_config_schemas_import_no_tensordict_or_torchrl():
     # A rejected value is reported after composing and validating these schemas: keeping
     # tensordict (which loads torch._dynamo) and torchrl out of that path halves start-up.
-    assert heavy_modules_after("import truckrl.configs") == {"torch"}
+    assert heavy_modules_after("import truckrl.config.schemas") == {"torch"}

@@ -5,7 +5,7 @@ The synthetic episodes here make that bias as strong as the real one: successes 
 steps, crashes after 50-200, the rest time out at 200 (success rate 13 %; measured on real
 resumes: 97 % success in the first iteration). Fed in finish order (the
 old way) the curriculum's EMA crosses the 0.70 promotion threshold in the first batch after a
-restart; fed by :class:`~truckrl.agent.cohorts.StartOrderFeed` it stays at the true rate.
+restart; fed by :class:`~truckrl.rl.cohorts.StartOrderFeed` it stays at the true rate.
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ import torch
 from tensordict import TensorDict
 from torch import Tensor
 
-from truckrl.agent.cohorts import StartOrderFeed
-from truckrl.agent.curriculum import Curriculum, CurriculumConfig, ema_trajectory
-from truckrl.agent.metrics import finished_in_time_order
+from truckrl.rl.cohorts import StartOrderFeed
+from truckrl.rl.curriculum import Curriculum, CurriculumConfig, ema_trajectory
+from truckrl.rl.metrics import finished_in_time_order
 
 P_SUCCESS, MAX_STEPS = 0.13, 200
 

@@ -20,8 +20,8 @@ from tests.reliability.harness import (
     run_main,
     run_session,
 )
-from truckrl.agent import checkpoint as ckpt
-from truckrl.agent.session import prepare_argv
+from truckrl.rl import checkpoint as ckpt
+from truckrl.rl.session import prepare_argv
 
 ROOT_USER = os.geteuid() == 0  # root ignores permission bits
 

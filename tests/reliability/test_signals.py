@@ -33,7 +33,7 @@ from tests.reliability.harness import (
     run_session,
     signal_at,
 )
-from truckrl.agent.checkpoint import load_checkpoint
+from truckrl.rl.checkpoint import load_checkpoint
 
 #: Seeded "random moments": (signal, phase, occurrence of the phase's function).
 RNG = random.Random(12)

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from truckrl.config.fields import ConfigError
 from truckrl.sim.control import (
     CONTROL_KEYS,
     LATERAL_MODES,
@@ -17,7 +18,6 @@ from truckrl.sim.control import (
     ControlConfig,
     commanded,
 )
-from truckrl.sim.validation import ConfigError
 from truckrl.sim.vehicle import PARAM_KEYS, VehicleConfig, sample_vehicle_params
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -1,4 +1,4 @@
-"""Dock scene generator: the rules of truckrl/sim/dock_scene.py on 10,000 scenes, checked in
+"""Dock scene generator: the rules of truckrl/tasks/dock/scene.py on 10,000 scenes, checked in
 numpy with independent geometry (truck rectangles from the vehicle parameters, exact
 segment-rectangle distances, segments taken back into the dock frame)."""
 
@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 import torch
 
-from truckrl.sim.dock_scene import (
+from truckrl.config.fields import ConfigError
+from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params
+from truckrl.tasks.dock.scene import (
     DOCK_INFO_KEYS,
     START_APRON,
     DockSceneConfig,
     generate_dock_scenes,
 )
-from truckrl.sim.scene import KIND_CURB, KIND_OBSTACLE
-from truckrl.sim.validation import ConfigError
-from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params
+from truckrl.tasks.intersection.scene import KIND_CURB, KIND_OBSTACLE
 
 N = 10_000
 TOL = 1e-3  # [m] float32 round-off at coordinates of O(100 m)

@@ -7,6 +7,7 @@ import math
 import pytest
 import torch
 
+from truckrl.config.fields import ConfigError
 from truckrl.sim.compiled import compile_sim
 from truckrl.sim.geometry import rectangle_segments
 from truckrl.sim.lidar import (
@@ -17,7 +18,6 @@ from truckrl.sim.lidar import (
     lidar_oracle,
     lidar_scan,
 )
-from truckrl.sim.validation import ConfigError
 
 F64 = torch.float64
 MAX_RANGE = 50.0
@@ -370,7 +370,7 @@ def test_sweep_scene_change_invalidates_cache():
 
 
 def test_generated_scenes_agree_with_oracle():
-    scene = pytest.importorskip("truckrl.sim.scene")
+    scene = pytest.importorskip("truckrl.tasks.intersection.scene")
     if not hasattr(scene, "generate_scenes"):
         pytest.skip("scene generator not available")
     from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params

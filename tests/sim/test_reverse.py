@@ -23,8 +23,8 @@ import pytest
 import torch
 
 from tests.sim.test_vehicle import _rk4_reference
+from truckrl.config.fields import ConfigError
 from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES, Control
-from truckrl.sim.validation import ConfigError
 from truckrl.sim.vehicle import (
     VehicleConfig,
     jackknifed,

@@ -7,13 +7,15 @@ import numpy as np
 import pytest
 import torch
 
+from truckrl.config.fields import ConfigError
 from truckrl.sim.collision import contour_collides
 from truckrl.sim.geometry import (
     polygon_segments,
     segment_segment_distance,
     segments_intersect,
 )
-from truckrl.sim.scene import (
+from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params, truck_corners, vehicle_outline
+from truckrl.tasks.intersection.scene import (
     CURB_SLOTS,
     ROUTE_LEFT,
     ROUTE_NAMES,
@@ -24,8 +26,6 @@ from truckrl.sim.scene import (
     SceneConfig,
     generate_scenes,
 )
-from truckrl.sim.validation import ConfigError
-from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params, truck_corners, vehicle_outline
 
 N = 10_000
 TOL = 1e-3  # [m] float32 round-off at coordinates of O(100 m)

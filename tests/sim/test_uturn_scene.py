@@ -1,6 +1,6 @@
-"""Turnaround scenes (truckrl/sim/uturn_scene.py): every rule of the module doc on 10,000 scenes,
+"""Turnaround scenes (truckrl/tasks/uturn/scene.py): every rule of the module doc on 10,000 scenes,
 checked with geometry written here (numpy, separating axes). The driven turnaround is in
-tests/agent/test_uturn_driver.py."""
+tests/rl/test_uturn_driver.py."""
 
 import dataclasses
 import math
@@ -9,21 +9,21 @@ import numpy as np
 import pytest
 import torch
 
+from truckrl.config.fields import ConfigError
 from truckrl.sim.collision import contour_collides
-from truckrl.sim.scene import KIND_CURB
-from truckrl.sim.uturn_scene import (
-    DEAD_END_SLOT,
-    INFO_KEYS,
-    NUM_SEGMENTS,
-    UTurnSceneConfig,
-    generate_uturn_scenes,
-)
-from truckrl.sim.validation import ConfigError
 from truckrl.sim.vehicle import (
     VehicleConfig,
     kinematics_step,
     sample_vehicle_params,
     vehicle_outline,
+)
+from truckrl.tasks.intersection.scene import KIND_CURB
+from truckrl.tasks.uturn.scene import (
+    DEAD_END_SLOT,
+    INFO_KEYS,
+    NUM_SEGMENTS,
+    UTurnSceneConfig,
+    generate_uturn_scenes,
 )
 
 N = 10_000

@@ -7,14 +7,14 @@ import math
 
 import pytest
 
-from truckrl.agent.curriculum import CurriculumConfig
-from truckrl.agent.network import ModelConfig
-from truckrl.agent.ppo import PPOConfig
+from truckrl.config.fields import ConfigError, Spec, param, spec_of, spec_table, validate
+from truckrl.rl.curriculum import CurriculumConfig
+from truckrl.rl.network import ModelConfig
+from truckrl.rl.ppo import PPOConfig
 from truckrl.sim.control import ControlConfig
 from truckrl.sim.lidar import LidarConfig
-from truckrl.sim.scene import SceneConfig
-from truckrl.sim.validation import ConfigError, Spec, param, spec_of, spec_table, validate
 from truckrl.sim.vehicle import VehicleConfig
+from truckrl.tasks.intersection.scene import SceneConfig
 from truckrl.viz.keyboard import KeyboardConfig
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from truckrl.sim.validation import ConfigError
+from truckrl.config.fields import ConfigError
 from truckrl.sim.vehicle import (
     VehicleConfig,
     jackknifed,

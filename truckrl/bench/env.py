@@ -34,7 +34,7 @@ from torchrl.envs import EnvBase, ParallelEnv
 from truckrl.bench import peers
 from truckrl.bench.report import draw_loglog_panels, print_table, write_json
 from truckrl.env import TruckEnv
-from truckrl.task import NUM_FEATURES
+from truckrl.tasks import NUM_FEATURES
 
 TARGET_STEPS_PER_S = 100_000  # issue target on a 2-core CPU, 16 beams
 TARGET_RATIO_VS_PAPER = 30.0  # best config >= 30x the paper layout in the same run
@@ -259,7 +259,7 @@ def _collector_rows(args: argparse.Namespace, compiled: bool) -> list[dict]:
     """Collector frames/s with the real two-branch policy (random weights)."""
     from torchrl.collectors import Collector
 
-    from truckrl.agent.network import ModelConfig, make_actor_critic
+    from truckrl.rl.network import ModelConfig, make_actor_critic
 
     rows = []
     for n in args.parallel_envs:

@@ -5,14 +5,14 @@ truckrl.train`` composes it (Hydra overrides as positional arguments or ``--over
 KEY=VALUE``; the planning and cloning that ``experiment=demos`` does first are not timed, and
 its cloning term, ``demos.bc_coeff > 0``, runs on stand-in samples: the first batch's
 observations and actions, the same work per minibatch as real demonstrations): the env from
-``make_env``, the actor-critic, the ``Collector``, the curriculum bookkeeping, :class:`~truckrl.agent.ppo.PPO` and the TensorBoard
+``make_env``, the actor-critic, the ``Collector``, the curriculum bookkeeping, :class:`~truckrl.rl.ppo.PPO` and the TensorBoard
 logger (into a temporary folder). After ``--warmup`` untimed iterations (they absorb
 ``torch.compile``), each of ``--iterations`` timed iterations is split into:
 
 * ``collect_s``: ``next(collector)`` (env steps and policy forwards);
 * ``stats_s``: difficulty check, episode statistics, start-order feed and curriculum update;
 * ``gae_s``, ``loss_forward_s``, ``backward_s``, ``optimizer_s``, ``ppo_metrics_s``: the spans of
-  :meth:`PPO.update <truckrl.agent.ppo.PPO.update>` (its ``timings`` argument);
+  :meth:`PPO.update <truckrl.rl.ppo.PPO.update>` (its ``timings`` argument);
 * ``weights_s``: ``collector.update_policy_weights_()``;
 * ``log_s``: the iteration's scalars written to TensorBoard (every iteration here, whatever
   ``log.interval`` says);
@@ -102,7 +102,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def check_args(args: argparse.Namespace) -> Any:
     """Apply ``--quick``, reject bad values with one line (SystemExit 2) before any work and
-    return the composed, validated :class:`~truckrl.configs.TrainConfig`."""
+    return the composed, validated :class:`~truckrl.config.schemas.TrainConfig`."""
     if args.quick:
         for k, v in QUICK.items():
             setattr(args, k, v)
@@ -136,8 +136,8 @@ def compose_train_config(overrides: list[str]) -> Any:
     """``conf/train.yaml`` with ``overrides``, composed and validated as ``truckrl.train`` does;
     a user error prints one line and exits 2."""
     from truckrl.cli import compose_config
-    from truckrl.configs import TrainConfig
-    from truckrl.sim.validation import ConfigError
+    from truckrl.config.fields import ConfigError
+    from truckrl.config.schemas import TrainConfig
 
     try:
         return compose_config("train", TrainConfig, overrides)
@@ -193,20 +193,20 @@ def run(args: argparse.Namespace) -> dict:
     if args.threads:
         torch.set_num_threads(args.threads)
 
-    from truckrl.agent.cohorts import StartOrderFeed
-    from truckrl.agent.collection import (
+    from truckrl.cli import seed_everything
+    from truckrl.rl.cohorts import StartOrderFeed
+    from truckrl.rl.collection import (
         check_difficulty,
         make_collector,
         make_env,
         set_difficulty,
     )
-    from truckrl.agent.curriculum import Curriculum
-    from truckrl.agent.metrics import EpisodeTracker, iteration_scalars
-    from truckrl.agent.network import LIDAR_KEY, OBS_KEY, make_actor_critic
-    from truckrl.agent.ppo import PPO
-    from truckrl.cli import seed_everything
-    from truckrl.run_logger import RunLogger
-    from truckrl.task import make_task
+    from truckrl.rl.curriculum import Curriculum
+    from truckrl.rl.logger import RunLogger
+    from truckrl.rl.metrics import EpisodeTracker, iteration_scalars
+    from truckrl.rl.network import LIDAR_KEY, OBS_KEY, make_actor_critic
+    from truckrl.rl.ppo import PPO
+    from truckrl.tasks import make_task
 
     device = torch.device(tc.device)
     seed_everything(tc.seed)

@@ -1,21 +1,24 @@
-"""Pure-torch simulator core: geometry, vehicle, control, scenes, collision, LiDAR.
+"""Pure-torch simulator core: geometry, vehicle, control, collision, LiDAR.
 
-Usable without TorchRL. Every function is batched over leading dimensions; shapes and units are
-in each module's docstrings. A minimal loop::
+World physics and geometry that any task uses; the scene generators live in the task folders
+(:mod:`truckrl.tasks`). Usable without TorchRL. Every function is batched over leading
+dimensions; shapes and units are in each module's docstrings. A minimal loop::
 
     import torch
-    from truckrl.sim import (Control, ControlConfig, SceneConfig, VehicleConfig, beam_angles,
-                             generate_scenes, kinematics_step, lidar_scan, sample_vehicle_params)
+    from truckrl.sim import (VehicleConfig, beam_angles, kinematics_step, lidar_scan,
+                             rectangle_segments, sample_vehicle_params)
 
     g = torch.Generator().manual_seed(0)
     params = sample_vehicle_params(VehicleConfig(), 8, g)          # {key: [8]}
-    scenes = generate_scenes(SceneConfig(), params, g)             # segments [8, E, 4], start [8, 3]
-    pose = torch.cat((scenes.start, torch.zeros(8, 1)), -1)        # (x, y, theta, phi)
+    c = torch.full((8,), 20.0)                                     # a box 20 m ahead of each truck
+    segments = rectangle_segments(c, 0 * c, 0 * c, 0 * c + 2, 0 * c + 2, 0 * c + 1)  # [8, 4, 4]
+    pose = torch.zeros(8, 4)                                       # (x, y, theta, phi)
     pose, _ = kinematics_step(pose, torch.full((8,), 5.0), torch.zeros(8), params, dt=0.1)
-    ranges = lidar_scan(pose[:, :2], pose[:, 2], scenes.segments, scenes.mask,
+    ranges = lidar_scan(pose[:, :2], pose[:, 2], segments, torch.ones(8, 4, dtype=torch.bool),
                         beam_angles(16), max_range=50.0)           # [8, 16] metres
 """
 
+from truckrl.config.fields import ConfigError
 from truckrl.sim.collision import contour_collides, truck_collides
 from truckrl.sim.control import (
     CONTROL_KEYS,
@@ -39,8 +42,6 @@ from truckrl.sim.geometry import (
     wrap_angle,
 )
 from truckrl.sim.lidar import LidarConfig, SweepLidar, beam_angles, lidar_oracle, lidar_scan
-from truckrl.sim.scene import SceneBatch, SceneConfig, generate_scenes
-from truckrl.sim.validation import ConfigError
 from truckrl.sim.vehicle import (
     PARAM_KEYS,
     VehicleConfig,
@@ -64,14 +65,11 @@ __all__ = [
     "Control",
     "ControlConfig",
     "LidarConfig",
-    "SceneBatch",
-    "SceneConfig",
     "SweepLidar",
     "VehicleConfig",
     "beam_angles",
     "commanded",
     "contour_collides",
-    "generate_scenes",
     "jackknifed",
     "kinematics_step",
     "lidar_oracle",

@@ -62,7 +62,7 @@ from types import MappingProxyType
 import torch
 from torch import Tensor
 
-from truckrl.sim.validation import (
+from truckrl.config.fields import (
     ConfigError,
     check_choice,
     check_range,

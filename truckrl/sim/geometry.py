@@ -18,6 +18,9 @@ from torch import Tensor
 #: collinear. Scene coordinates are O(100 m), so float32 round-off on cross products is ~1e-5.
 PARALLEL_EPS = 1e-6
 
+#: ``kind`` values of scene segments (drawing tells curbs from obstacles; physics does not).
+KIND_CURB, KIND_OBSTACLE = 0, 1
+
 
 def wrap_angle(angle: Tensor) -> Tensor:
     """Wrap angles [rad] to ``[-pi, pi)``. Any shape."""

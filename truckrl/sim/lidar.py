@@ -31,6 +31,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from truckrl.config.fields import ConfigError, check_choice, param, validate
 from truckrl.sim.geometry import (
     RAY_TOLERANCE_ULPS,
     point_segment_distance,
@@ -41,7 +42,6 @@ from truckrl.sim.geometry import (
     unit_vectors,
     wrap_angle,
 )
-from truckrl.sim.validation import ConfigError, check_choice, param, validate
 
 #: Implementations of :func:`lidar_scan`.
 METHODS: tuple[str, ...] = ("dense", "span")

@@ -20,7 +20,7 @@ draws :data:`REVERSE_KEYS` (``max_reverse_speed`` [m/s], the bound ``v >= -max_r
 and its control (:class:`truckrl.sim.control.Control` with ``reverse=True``) lets the speed go
 down to it. The defaults,
 allowed ranges, units and meanings live in the fields of :class:`VehicleConfig` only; ``python -m
-truckrl.configs`` prints them as a table.
+truckrl.config.schemas`` prints them as a table.
 
 Kinematics (:func:`kinematics_step`): kinematic bicycle for the tractor plus a trailer on a hitch,
 
@@ -47,13 +47,13 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from truckrl.config.fields import ConfigError, check_range, param, validate
 from truckrl.sim.geometry import (
     rectangle_corners,
     rectangle_segments,
     segment_box_overlap,
     wrap_angle,
 )
-from truckrl.sim.validation import ConfigError, check_range, param, validate
 
 #: Randomized parameter keys, in the fixed order used by observations and docs.
 PARAM_KEYS: tuple[str, ...] = (
@@ -416,3 +416,12 @@ def steady_state_articulation(steer: Tensor, params: dict[str, Tensor]) -> Tenso
     k = torch.tan(steer) / params["wheelbase"]
     ak = params["kingpin_offset"] * k
     return torch.asin(-params["trailer_wheelbase"] * k / torch.sqrt(1.0 + ak * ak)) - torch.atan(ak)
+
+
+#: Trailer parameters whose sum is the trailer length [m].
+TRAILER_KEYS = ("trailer_front_overhang", "trailer_wheelbase", "trailer_rear_overhang")
+
+
+def trailer_length(params: dict[str, Tensor]) -> Tensor:
+    """Trailer body length [m] ``[E]``: front overhang + wheelbase + rear overhang."""
+    return sum((params[k] for k in TRAILER_KEYS[1:]), params[TRAILER_KEYS[0]])

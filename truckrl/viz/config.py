@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from truckrl.sim.validation import param, validate
+from truckrl.config.fields import param, validate
 
 
 @dataclass(frozen=True)

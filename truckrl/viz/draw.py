@@ -296,7 +296,7 @@ def draw_state(
 
     Args:
         state: one truck's state (``TruckEnv.get_state()[i]``: pose, goal, segments, mask, kind,
-            params; layout in :mod:`truckrl.task.base`).
+            params; layout in :mod:`truckrl.tasks.base`).
         lidar: ``[R]`` ranges [m] of that state (the observation's ``lidar`` times the max range).
         rel_angles: ``[R]`` beam directions relative to the tractor heading [rad].
         tolerance: ``(position [m], heading [rad])`` goal tolerance, or None.
@@ -307,7 +307,7 @@ def draw_state(
         ``[H, W, 3]`` uint8 RGB image.
     """
     from truckrl.sim.vehicle import truck_corners
-    from truckrl.task.base import sensor_origin
+    from truckrl.tasks.base import sensor_origin
 
     s = state.unsqueeze(0) if state.batch_dims == 0 else state
     tractor, trailer, _ = truck_corners(s["pose"], s["params"])

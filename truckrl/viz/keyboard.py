@@ -48,8 +48,8 @@ import enum
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from truckrl.config.fields import ConfigError, check_range, from_mapping, param, validate
 from truckrl.sim.control import ControlConfig
-from truckrl.sim.validation import ConfigError, check_range, from_mapping, param, validate
 
 DRIVE_KEYS: tuple[str, ...] = ("w", "a", "s", "d")
 

@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 import torch
 
-from truckrl.sim.scene import SceneBatch, SceneConfig, generate_scenes
 from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params, truck_corners
+from truckrl.tasks.intersection.scene import SceneBatch, SceneConfig, generate_scenes
 from truckrl.viz.draw import draw_scene
 
 

@@ -1,0 +1,173 @@
+"""Behaviour cloning from planner demonstrations: replayed samples, the fit, and the
+``python -m truckrl.tools.imitate`` checkpoint that ``train resume=`` continues."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from tests.conftest import TINY_BATCH, TINY_TRAIN, run_cli
+from tests.rl.test_planner import ENV, FAST, straight_scene
+from truckrl import imitate as imitate_cli
+from truckrl import plan as plan_cli
+from truckrl.env import TruckEnv
+from truckrl.planning.planner import plan_states
+from truckrl.rl.imitation import (
+    SAMPLES_NAME,
+    behaviour_clone,
+    bootstrap,
+    demonstrations,
+    load_samples,
+    set_action_std,
+)
+from truckrl.rl.network import ModelConfig, make_actor_critic
+from truckrl.rl.policy import load_policy
+
+
+@pytest.fixture(scope="module")
+def solved():
+    """The straight scene and a planner sequence that solves it at difficulty 2."""
+    state = straight_scene()
+    res, _, _ = plan_states(ENV, state, 2.0, FAST)
+    assert bool(res["success"][0])
+    n = int(res["length"][0])
+    return state, res["actions"][0, :n].tolist()
+
+
+def test_samples_are_what_the_policy_sees_before_each_action(solved):
+    state, actions = solved
+    stalled = [[-1.0, 0.0]] * 30  # stands still: a timeout of this 30-step sequence
+    both = torch.cat((state, state))
+    samples, kept = demonstrations(ENV, both, [actions, stalled], 2.0)
+    assert kept == 1 and samples.numel() == len(actions)  # the stalled one is dropped
+    env = TruckEnv(num_envs=1, config=ENV, seed=0)
+    env.set_difficulty(2.0)
+    td = env.set_state(state.clone())
+    for t in (0, 1, len(actions) - 1):
+        if t:
+            td = env.set_state(state.clone())
+            for a in actions[:t]:
+                td = env.step(td.set("action", torch.tensor([a])))["next"]
+        assert torch.equal(samples["observation"][t], td["observation"][0])
+        assert torch.equal(samples["lidar"][t], td["lidar"][0])
+        assert samples["action"][t].tolist() == pytest.approx(actions[t])
+
+
+def test_cloning_fits_the_mean_and_leaves_std_and_critic(solved):
+    state, actions = solved
+    samples, _ = demonstrations(ENV, state, [actions], 2.0)
+    torch.manual_seed(0)
+    ac = make_actor_critic(ModelConfig(), samples["observation"].shape[1], 16)
+    log_std = ac.gaussian.log_std.detach().clone()
+    value = [p.detach().clone() for p in ac.value_head.parameters()]
+    losses = behaviour_clone(ac, samples, epochs=40, lr=3e-3, batch_size=32)
+    assert losses[-1] < 0.3 * losses[0]
+    assert torch.equal(ac.gaussian.log_std, log_std)
+    assert all(torch.equal(a, b) for a, b in zip(value, ac.value_head.parameters(), strict=True))
+    set_action_std(ac, 0.2)
+    assert torch.allclose(ac.action_std(), torch.full((2,), 0.2))
+
+
+@pytest.mark.e2e
+def test_imitate_writes_a_checkpoint_that_train_resumes(tmp_path, capsys):
+    plan_json = tmp_path / "plan.json"
+    env = ["--env", "max_steps=40"]
+    # plan in process (its CLI has a subprocess test of its own); imitate and train as users do
+    threads = torch.get_num_threads()
+    try:
+        code = plan_cli.main([
+            "--episodes", "3", "--difficulty", "0", "--no-compile", "--samples", "32",
+            "--iterations", "2", "--quiet", *env, "--output", str(plan_json),
+        ])  # fmt: skip
+    finally:
+        torch.set_num_threads(threads)
+    assert code == 0, capsys.readouterr().err
+    assert any(e["success"] for e in json.loads(plan_json.read_text())["per_episode"])
+    out = tmp_path / "bc"
+    # with the cloning term on: the samples go beside the checkpoint, and the resume uses them
+    tiny = [o for o in TINY_TRAIN if not o.startswith("demos.bc_coeff")]
+    tiny += ["env.max_steps=40", "demos.bc_coeff=1"]
+    proc = run_cli("imitate", str(plan_json), *tiny, "--epochs", "3", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert f"train: python -m truckrl.train resume={out}" in proc.stdout
+    policy = load_policy(out)
+    assert policy.counters["frames"] == 0 and policy.difficulty == 0.0
+    kept = int(proc.stdout.split(" samples")[0].rsplit(" ", 1)[-1])
+    samples = load_samples(out / SAMPLES_NAME)
+    assert samples.numel() == kept > 0
+    # planned with the plan CLI's env (the paper's 16 beams), replayed with the run's 32
+    assert json.loads(plan_json.read_text())["env"]["lidar"]["num_beams"] == 16
+    assert samples["lidar"].shape[1] == 32 and policy.env_config.lidar.num_beams == 32
+    proc = run_cli("train", f"resume={out}", f"total_frames={TINY_BATCH}")
+    assert proc.returncode == 0, proc.stderr
+    assert load_policy(out).counters["frames"] == TINY_BATCH
+    acc = EventAccumulator(str(out / "tb"))
+    acc.Reload()
+    assert acc.Scalars("loss/bc")[0].value > 0
+    # a plan made with other env settings is refused in one line
+    capsys.readouterr()
+    err = _exit_2(capsys, str(plan_json), *TINY_TRAIN, "--out", str(tmp_path / "x"))
+    assert len(err.strip().splitlines()) == 1
+    assert err.startswith("error: plan ") and "(env.max_steps)" in err
+    assert not (tmp_path / "x").exists()
+
+
+def _exit_2(capsys, *argv: str) -> str:
+    """``python -m truckrl.tools.imitate argv`` in process: it must exit 2; its stderr."""
+    with pytest.raises(SystemExit) as exit_:
+        imitate_cli.main(list(argv))
+    assert exit_.value.code == 2
+    return capsys.readouterr().err
+
+
+def test_bad_options_are_one_line(capsys):
+    assert _exit_2(capsys, "nowhere.json").startswith("error: plan nowhere.json")
+    err = _exit_2(capsys, "nowhere.json", "--std", "0")
+    assert err.strip() == "error: --std = 0 must be in [0.001, 10]"
+
+
+def test_samples_file_round_trips_and_a_bad_one_is_one_line(tmp_path):
+    from tensordict import TensorDict
+
+    from truckrl.rl.imitation import save_samples
+
+    g = torch.Generator().manual_seed(0)
+    samples = TensorDict(
+        {"observation": torch.randn(5, 26, generator=g), "lidar": torch.rand(5, 16, generator=g),
+         "action": torch.rand(5, 2, generator=g) * 2 - 1},
+        [5],
+    )  # fmt: skip
+    path = save_samples(tmp_path / SAMPLES_NAME, samples)
+    back = load_samples(path)
+    assert back.batch_size == torch.Size([5])
+    assert all(torch.equal(back[k], samples[k]) for k in ("observation", "lidar", "action"))
+    assert not list(tmp_path.glob(".*"))  # written atomically: no temp file left
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a torch file")
+    for p, text in ((bad, "is not a demonstrations file"), (tmp_path / "no.pt", "does not exist")):
+        with pytest.raises(ValueError, match=text) as e:
+            load_samples(p)
+        assert str(p) in str(e.value) and len(str(e.value).splitlines()) == 1
+
+
+def test_bootstrap_plans_on_demos_device_else_on_the_runs(monkeypatch):
+    """``demos.device`` moves the planner (``cpu``: a GPU run planning on the host's cores);
+    unset, it plans where the run is."""
+    import truckrl.planning.planner as planner
+    from truckrl.config.schemas import DemosConfig
+
+    seen = []
+
+    def start_states(env_cfg, episodes, seed, device, difficulty=None):
+        seen.append(str(device))
+        raise RuntimeError("planned")  # where the planner runs is all this test needs
+
+    monkeypatch.setattr(planner, "held_out_states", start_states)
+    for dc, run_device in ((DemosConfig(episodes=2, device="cpu"), "meta"),
+                           (DemosConfig(episodes=2), "meta")):  # fmt: skip
+        with pytest.raises(RuntimeError, match="planned"):
+            bootstrap(None, ENV, dc, run_device)
+    assert seen == ["cpu", "meta"]

@@ -1,0 +1,158 @@
+"""Deterministic evaluation: one episode per seeded scene with the policy's mean action."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torch import Tensor
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from truckrl.env import TruckEnv
+from truckrl.sim.vehicle import trailer_length
+from truckrl.tasks import OUTCOMES, EnvConfig, Quantity, shown
+
+#: What :func:`evaluate_policy` runs: a TorchRL actor, or any ``td -> td`` that sets "action".
+Policy = TensorDictModuleBase | Callable[[TensorDictBase], TensorDictBase]
+
+
+#: State entries that hold a task's per-episode scene metadata ``{key: [N]}``: ``route`` (the
+#: intersection task's, named after its main key) and ``scene_info`` (other tasks).
+SCENE_INFO_ENTRIES = ("route", "scene_info")
+
+
+@torch.no_grad()
+def evaluate_policy(
+    actor: Policy,
+    env_cfg: EnvConfig,
+    difficulty: float,
+    episodes: int,
+    seed: int,
+    device: str | torch.device = "cpu",
+    record_paths: bool = False,
+) -> tuple[dict[str, Tensor], tuple[float, float], tuple[Quantity, ...]]:
+    """Run one episode in each of ``episodes`` seeded scenes with the mean action.
+
+    All episodes run as one batch; each env's first episode is recorded at its first ``done``
+    (every episode ends by ``env_cfg.max_steps``). The same ``seed`` gives the same scenes.
+
+    Args:
+        actor: the policy. A TorchRL actor (``TensorDictModule``) runs under
+            ``ExplorationType.DETERMINISTIC``, i.e. with its mean action. Any other callable
+            ``td -> td`` works too (a scripted or planning controller): it gets the env's
+            tensordict ``[E]`` ("observation", "lidar", the flags...) and must return a
+            tensordict ``[E]`` with "action" ``[E, 2]`` in [-1, 1], as ``TruckEnv.step`` takes.
+            It runs under ``torch.no_grad()``.
+
+    Returns:
+        ``(results, (position tolerance [m], heading tolerance [deg]), errors)``: ``results``
+        holds per-episode ``[E]`` tensors on CPU: one bool per outcome flag ("success",
+        "collision", "jackknife", "truncated"), "length" [steps] and each of the task's
+        ``errors`` at the episode's last step, in its shown unit (m or deg). It also holds each
+        episode's scene, read from the env's state at reset, so that row ``i`` of every entry
+        is the same episode: "trailer_length" [m] (front overhang + wheelbase + rear overhang)
+        and every scene metadata entry the task records (``state["route"]`` or
+        ``state["scene_info"]``, :data:`SCENE_INFO_ENTRIES`): for the
+        intersection task the :data:`~truckrl.tasks.intersection.scene.ROUTE_KEYS`, "route" (long,
+        ``ROUTE_*``), "turn_angle" and "crossing_angle" [rad], "start_road_width",
+        "goal_road_width" and "goal_distance" [m]. ``results`` is thus a valid input of
+        :func:`truckrl.evaluation.categories.task_bins`. With ``record_paths`` it also holds "path"
+        ``[E, T + 1, 4]``: the pose ``(x, y, heading, articulation)`` [m, m, rad, rad] at the
+        start and after each step, held at its last value once the episode has ended (``T``:
+        the steps the batch ran); the start states themselves (the scenes) are
+        :func:`truckrl.planning.planner.held_out_states` of the same env config, seed and
+        difficulty.
+    """
+    # eager: a one-off batch does not repay ~20 s of torch.compile
+    env_cfg = dataclasses.replace(env_cfg, compile=False)
+    env = TruckEnv(num_envs=episodes, device=device, config=env_cfg, seed=seed)
+    env.set_difficulty(difficulty)
+    tol_pos, tol_ang = env.tolerances()
+    tolerance = (float(tol_pos[0]), math.degrees(float(tol_ang[0])))
+    errors = env.task.error_quantities
+    flags = tuple(o.flag for o in OUTCOMES)
+    keys = (*flags, *(q.key for q in errors), "step_count")
+    rec = {k: torch.zeros(episodes, device=device) for k in keys}
+    ended = torch.zeros(episodes, dtype=torch.bool, device=device)
+    td = env.reset()
+    start = env.get_state()
+    scene = {"trailer_length": trailer_length(start["params"])}
+    for entry in SCENE_INFO_ENTRIES:
+        if entry in start.keys():
+            scene |= {k: start[entry, k] for k in start[entry].keys()}
+    path = [start["pose"]] if record_paths else None
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        for _ in range(env_cfg.max_steps):
+            nxt = env.step(actor(td))["next"]
+            new = nxt["done"].squeeze(-1) & ~ended
+            for k in keys:
+                rec[k] = torch.where(new, nxt[k].squeeze(-1).to(torch.float32), rec[k])
+            if path is not None:  # the state after the step (an ended truck keeps its pose)
+                path.append(torch.where(ended[:, None], path[-1], env.get_state()["pose"]))
+            ended |= new
+            if bool(ended.all()):
+                break
+            td = nxt
+    env.close()
+    out = {k: rec[k].bool().cpu() for k in flags}
+    out["length"] = rec["step_count"].cpu()
+    for q in errors:
+        out[q.key] = shown(q, rec[q.key]).cpu()
+    for k, v in scene.items():
+        out[k] = v.long().cpu() if k == "route" else v.cpu()
+    if path is not None:
+        out["path"] = torch.stack(path, 1).cpu()
+    return out, tolerance, errors
+
+
+def summarize(results: dict[str, Tensor], errors: tuple[Quantity, ...]) -> dict[str, float]:
+    """Outcome rates, mean length and mean / p95 of the final errors over episodes."""
+    out: dict[str, float] = {"episodes": int(results["success"].numel())}
+    for o in OUTCOMES:
+        out[f"{o.name}_rate"] = results[o.flag].float().mean().item()
+    out["mean_length"] = results["length"].mean().item()
+    for q in errors:
+        v = results[q.key].to(torch.float64)
+        out[f"{q.key}_{q.shown_unit}_mean"] = v.mean().item()
+        out[f"{q.key}_{q.shown_unit}_p95"] = torch.quantile(v, 0.95).item()
+    return out
+
+
+@torch.no_grad()
+def policy_actions(
+    actor: Policy,
+    env_cfg: EnvConfig,
+    states: TensorDictBase,
+    difficulty: float,
+    device: str | torch.device = "cpu",
+) -> Tensor:
+    """The actions ``[E, T, 2]`` that ``actor``'s mean action applies from each start state of
+    ``states [E]`` (as from :meth:`TruckEnv.get_state`) in one episode of at most ``T =
+    env_cfg.max_steps`` steps; zeros after the episode's first ``done``.
+
+    The sequence is open loop: replayed from the same start state through the deterministic
+    simulator (``planner.replay``) it drives the same episode, which is how
+    ``python -m truckrl.plan --policy`` checks a policy's solutions with the planner's replay.
+    """
+    env_cfg = dataclasses.replace(env_cfg, compile=False)
+    e = states.batch_size[0]
+    env = TruckEnv(num_envs=e, device=device, config=env_cfg, seed=0)
+    env.set_difficulty(difficulty)
+    td = env.set_state(states)
+    out = torch.zeros(e, env_cfg.max_steps, 2, device=device)
+    ended = torch.zeros(e, dtype=torch.bool, device=device)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        for t in range(env_cfg.max_steps):
+            td = actor(td)
+            out[:, t] = torch.where(ended[:, None], 0.0, td["action"].clamp(-1.0, 1.0))
+            nxt = env.step(td)["next"]
+            ended |= nxt["done"].squeeze(-1)
+            if bool(ended.all()):
+                break
+            td = nxt
+    env.close()
+    return out.cpu()

@@ -1,0 +1,281 @@
+"""Behaviour cloning from planner demonstrations: a start for PPO that already drives every route.
+
+Trained from scratch, PPO learns straight roads and left turns but settles on standing still in
+right turns (README, "Learning quality"): its first attempts crash, and with the paper's rewards
+and discount a timeout 200 steps later costs less than a crash now. The planner
+(:mod:`truckrl.planning.planner`) solves those scenes. This module turns its plans into a policy
+start:
+
+* :func:`demonstrations` replays the successful action sequences of a plan through an eager
+  :class:`~truckrl.env.TruckEnv` started from the same scene states and records what the policy
+  would have seen before each action: ``observation [M, F]``, ``lidar [M, R]`` and the
+  planner's ``action [M, 2]``, for every step up to the end of each episode (``M`` samples in
+  all). A replay that does not end in success is dropped (the count is returned).
+* :func:`behaviour_clone` fits the actor's mean ("loc") to those actions by mean squared error
+  with Adam, shuffled minibatches, a fixed seed; the critic and the log-std are left alone (the
+  log-std is then set by the caller).
+
+The planner solves no ``uturn`` scene; there ``demos.source=driver`` records the scripted
+turnaround of :mod:`truckrl.tasks.uturn.expert` instead (closed loop, successful episodes only).
+
+``python -m truckrl.tools.imitate`` wraps both and writes a training checkpoint that
+``python -m truckrl.train resume=<dir>`` continues; :func:`bootstrap` does the whole chain (plan,
+replay, clone) inside ``python -m truckrl.train demos.episodes=N``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict import TensorDict
+from torch import Tensor
+
+from truckrl.env import TruckEnv
+from truckrl.rl.checkpoint import save_checkpoint
+from truckrl.rl.network import LIDAR_KEY, OBS_KEY, ActorCritic
+from truckrl.tasks import EnvConfig
+
+
+def demonstrations(
+    env_cfg: EnvConfig,
+    states: TensorDict,
+    actions: Sequence[Sequence[Sequence[float]]],
+    difficulty: float,
+) -> tuple[TensorDict, int]:
+    """Replay action sequences from start states; keep the successful episodes' samples.
+
+    Args:
+        env_cfg: the env config the plans were made with.
+        states: ``[E]`` start states (:meth:`TruckEnv.get_state` layout).
+        actions: ``E`` sequences of ``[2]`` actions in ``[-1, 1]`` (lengths may differ).
+        difficulty: the difficulty the plans were made at (it decides when an episode ends).
+
+    Returns:
+        ``(samples, kept)``: ``samples`` ``[M]`` with "observation", "lidar" and "action";
+        ``kept`` = the number of episodes whose replay succeeded.
+    """
+    e = int(states.batch_size[0])
+    if len(actions) != e:
+        raise ValueError(f"{len(actions)} action sequences for {e} start states")
+    lengths = torch.tensor([len(a) for a in actions])
+    horizon = int(lengths.max()) if e else 0
+    acts = torch.zeros(e, horizon, 2)
+    for j, seq in enumerate(actions):
+        if len(seq):
+            acts[j, : len(seq)] = torch.as_tensor(seq, dtype=torch.float32)
+    env = TruckEnv(num_envs=e, config=dataclasses.replace(env_cfg, compile=False), seed=0)
+    env.set_difficulty(difficulty)
+    td = env.set_state(states.clone())
+    alive = torch.ones(e, dtype=torch.bool)
+    succeeded = torch.zeros(e, dtype=torch.bool)
+    rows: list[tuple[Tensor, Tensor, Tensor, Tensor]] = []
+    for t in range(horizon):
+        take = alive & (t < lengths)
+        rows.append((take, td[OBS_KEY], td[LIDAR_KEY], acts[:, t]))
+        nxt = env.step(td.set("action", acts[:, t]))["next"]
+        done = nxt["done"].squeeze(-1)
+        succeeded |= take & done & nxt["success"].squeeze(-1)
+        alive &= ~done & (t + 1 < lengths)
+        td = nxt
+    env.close()
+    keep = [(m & succeeded, o, li, a) for m, o, li, a in rows]
+    samples = TensorDict(
+        {
+            OBS_KEY: torch.cat([o[m] for m, o, _, _ in keep]),
+            LIDAR_KEY: torch.cat([li[m] for m, _, li, _ in keep]),
+            "action": torch.cat([a[m] for m, _, _, a in keep]),
+        }
+        if keep
+        else {
+            OBS_KEY: torch.zeros(0, env.task.num_features),
+            LIDAR_KEY: torch.zeros(0, env_cfg.lidar.num_beams),
+            "action": torch.zeros(0, 2),
+        },
+        batch_size=[sum(int((m & succeeded).sum()) for m, *_ in keep)],
+    )
+    return samples, int(succeeded.sum())
+
+
+def action_mse(ac: ActorCritic, batch: TensorDict) -> Tensor:
+    """Mean squared error ``[]`` between the actor's mean ("loc") and ``batch["action"]``.
+
+    ``batch`` is ``[B]`` with "observation", "lidar" and "action" (a :func:`demonstrations`
+    slice); differentiable in the trunk and the mean head.
+    """
+    # the trunk and the mean head only: no action is sampled (no random numbers spent)
+    loc = ac.actor.get_dist_params(batch.select(OBS_KEY, LIDAR_KEY))["loc"]
+    return (loc - batch["action"]).square().mean()
+
+
+#: Where a run keeps its demonstration samples when PPO goes on cloning (``demos.bc_coeff``).
+SAMPLES_NAME = "demos.pt"
+_SAMPLE_KEYS = (OBS_KEY, LIDAR_KEY, "action")
+
+
+def save_samples(path: str | Path, samples: TensorDict) -> Path:
+    """Write demonstration samples atomically (tensors only: loads with ``weights_only=True``)."""
+    return save_checkpoint(path, {k: samples[k].detach().cpu() for k in _SAMPLE_KEYS})
+
+
+def load_samples(path: str | Path) -> TensorDict:
+    """Read :func:`save_samples`' file back as ``[M]`` samples.
+
+    Raises:
+        ValueError: missing, unreadable or not a samples file (one line naming the file).
+    """
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+        return TensorDict({k: data[k] for k in _SAMPLE_KEYS}, batch_size=[len(data["action"])])
+    except FileNotFoundError:
+        raise ValueError(f"{path} does not exist") from None
+    except Exception as e:  # noqa: BLE001 - any unreadable file is the same one-line error
+        first = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        raise ValueError(f"{path} is not a demonstrations file ({first})") from None
+
+
+def behaviour_clone(
+    ac: ActorCritic,
+    samples: TensorDict,
+    epochs: int,
+    lr: float,
+    batch_size: int,
+    seed: int = 0,
+) -> list[float]:
+    """Fit the actor's mean to ``samples["action"]`` (MSE); return the mean loss of each epoch.
+
+    Only the trunk and the mean head move (the log-std has no gradient in this loss; the value
+    head is not in the actor).
+    """
+    n = int(samples.batch_size[0])
+    if n == 0:
+        raise ValueError("no demonstration samples to clone")
+    gen = torch.Generator().manual_seed(seed)
+    params = [p for name, p in ac.actor.named_parameters() if not name.endswith("log_std")]
+    opt = torch.optim.Adam(params, lr=lr)
+    losses = []
+    for _ in range(epochs):
+        order = torch.randperm(n, generator=gen)
+        total = 0.0
+        for start in range(0, n, batch_size):
+            b = samples[order[start : start + batch_size]]
+            loss = action_mse(ac, b)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += float(loss.detach()) * int(b.batch_size[0])
+        losses.append(total / n)
+    return losses
+
+
+def set_action_std(ac: ActorCritic, std: float) -> None:
+    """Set the policy's state-independent std [action units] for every action dimension."""
+    with torch.no_grad():
+        ac.gaussian.log_std.fill_(math.log(std))
+    ac.gaussian.project_()  # within model.max_std
+
+
+def plan_demos(plan: dict[str, Any]) -> tuple[list[int], list[list[list[float]]]]:
+    """Scene indices and action sequences of the successful episodes of a ``plan.json``."""
+    episodes = [e for e in plan["per_episode"] if e["success"]]
+    return [int(e["scene_index"]) for e in episodes], [e["actions"] for e in episodes]
+
+
+def _driven(env_cfg: EnvConfig, dc: Any) -> tuple[Tensor, TensorDict]:
+    """``dc.episodes`` road starts of seed ``dc.seed`` driven by the scripted turnaround
+    (:func:`truckrl.tasks.uturn.expert.driven_demos`): ``(solved [E], samples [M])``."""
+    from truckrl.planning.planner import held_out_states
+    from truckrl.tasks import MAX_DIFFICULTY
+    from truckrl.tasks.uturn.expert import driven_demos
+
+    if env_cfg.task.name != "uturn":
+        raise ValueError(
+            f"demos.source = driver drives task uturn only (env.task.name = {env_cfg.task.name})"
+        )
+    # from the top of the start curriculum every start is the road start, the driver's
+    states = held_out_states(env_cfg, dc.episodes, dc.seed, "cpu", difficulty=MAX_DIFFICULTY)
+    samples, solved = driven_demos(env_cfg, states, dc.difficulty)
+    return solved, samples
+
+
+def bootstrap(
+    ac: ActorCritic,
+    env_cfg: EnvConfig,
+    dc: Any,
+    device: torch.device | str = "cpu",
+    seed: int = 0,
+    progress: Any = None,
+) -> tuple[dict[str, Any], TensorDict]:
+    """Plan ``dc.episodes`` scenes of seed ``dc.seed`` (``dc.source`` "planner"; "driver":
+    drive them with the scripted turnaround of :mod:`truckrl.tasks.uturn.expert`), clone the
+    successful episodes into ``ac``'s actor and set its std: a training run's start
+    (``train demos.episodes=N``).
+
+    Args:
+        ac: the fresh actor-critic (changed in place: trunk and mean head, log-std).
+        env_cfg: the training's env config (the plans use it).
+        dc: :class:`~truckrl.config.schemas.DemosConfig`; the planner runs on ``dc.device`` when set,
+            else on ``device``.
+        device: where ``ac`` is and the cloning runs.
+        seed: behaviour-cloning shuffle seed.
+        progress: ``progress(done, total)`` after every planner iteration, or None.
+
+    Returns:
+        ``(summary, samples)``: a JSON-ready summary (scenes, source, the demonstrator's success
+        rate, episodes kept, samples, losses, seconds) and the ``[M]`` samples it cloned.
+
+    Raises:
+        ValueError: no episode succeeded (nothing to clone), or ``source`` "driver" with a task
+            other than ``uturn``.
+    """
+    import time
+
+    from truckrl.planning.planner import PlannerConfig, held_out_states, plan_states
+
+    t0 = time.perf_counter()
+    if dc.source == "driver":
+        success, samples = _driven(env_cfg, dc)
+    else:
+        overrides = {"compile": dc.compile}
+        overrides |= {k: getattr(dc, k) for k in ("samples", "iterations") if getattr(dc, k)}
+        where = dc.device or device
+        states = held_out_states(env_cfg, dc.episodes, dc.seed, where)
+        results, _, _ = plan_states(
+            env_cfg, states, dc.difficulty, PlannerConfig(**overrides), where, progress
+        )
+        success = results["success"]
+    t_plan = time.perf_counter() - t0
+    ok = success.nonzero().squeeze(-1)
+    if ok.numel() == 0:
+        raise ValueError(
+            f"the {dc.source} solved none of {dc.episodes} scenes at difficulty "
+            f"{dc.difficulty:g}: nothing to clone (lower demos.difficulty or raise demos.episodes)"
+        )
+    if dc.source == "driver":
+        kept = int(ok.numel())
+    else:
+        lengths = results["length"].long()
+        actions = [results["actions"][j, : int(lengths[j])].tolist() for j in ok.tolist()]
+        samples, kept = demonstrations(
+            env_cfg, states[ok.to(states.device)].cpu(), actions, dc.difficulty
+        )
+    losses = behaviour_clone(ac, samples.to(device), dc.epochs, dc.lr, dc.batch_size, seed=seed)
+    set_action_std(ac, dc.std)
+    summary = {
+        "scenes": dc.episodes,
+        "seed": dc.seed,
+        "difficulty": dc.difficulty,
+        "source": dc.source,
+        "planner_success_rate": success.float().mean().item(),
+        "plans_kept": kept,
+        "samples": int(samples.batch_size[0]),
+        "epochs": dc.epochs,
+        "losses": losses,
+        "plan_seconds": t_plan,
+        "seconds": time.perf_counter() - t0,
+    }
+    return summary, samples
