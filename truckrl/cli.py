@@ -89,6 +89,50 @@ def run_or_fail(run: Callable[[Any], Any], args: Any) -> int:
     return 0
 
 
+def key_value_config(schema: type[T], argv: list[str], prog: str, about: str = "") -> T:
+    """Parse ``KEY=VALUE`` arguments (dotted keys for nested fields, values in YAML syntax, as
+    Hydra's overrides) into a validated ``schema`` instance: the argument style of every command
+    whose config is one dataclass rather than a composed Hydra config (``bench``, ``tools ...``).
+
+    ``-h`` / ``--help`` prints ``prog``, ``about`` and the fields (name, default, unit, allowed,
+    meaning) and exits 0; a malformed argument, an unknown key or a bad value prints one line
+    ``error: ...`` and exits 2 (:func:`fail`).
+    """
+    import yaml
+
+    from truckrl.config.fields import ConfigError, build, spec_table
+
+    if {"-h", "--help"} & set(argv):
+        rows = spec_table(schema)
+        width = max(len(r[0]) for r in rows)
+        lines = [f"usage: {prog} [KEY=VALUE ...]", *([about] if about else []), "", "keys:"]
+        for name, default, unit, allowed, doc in rows:
+            unit_text = f" [{unit}]" if unit else ""
+            lines.append(f"  {name:<{width}}  {doc}{unit_text}; {allowed}; default {default}")
+        print("\n".join(lines))
+        sys.exit(0)
+    data: dict[str, Any] = {}
+    for arg in argv:
+        key, sep, text = arg.partition("=")
+        if not sep or not key or not all(p.isidentifier() for p in key.split(".")):
+            fail(f"{arg!r}: arguments are KEY=VALUE (see {prog} --help)")
+        try:
+            value = yaml.safe_load(text) if text else ""
+        except yaml.YAMLError:
+            value = text
+        node = data
+        *parents, leaf = key.split(".")
+        for part in parents:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                fail(f"{key}: {part} is a value, not a group of fields")
+        node[leaf] = value
+    try:
+        return build(schema, data)
+    except ConfigError as e:
+        fail(str(e))
+
+
 def check_scene_options(args: argparse.Namespace) -> None:
     """The options of a command that plays a checkpoint on held-out scenes (``--episodes``,
     ``--seed``, ``--threads``, ``--difficulty``; argparse names).
