@@ -17,7 +17,7 @@ import torch
 import yaml
 from hydra import compose, initialize_config_dir
 
-from truckrl.cli import CONFIG_PATH, to_config
+from truckrl.cli import CONFIG_PATH, to_config, with_task_presets
 from truckrl.config.schemas import TrainConfig, register
 from truckrl.rl.checkpoint import save_training_state
 from truckrl.rl.curriculum import Curriculum
@@ -43,10 +43,11 @@ TINY_BATCH = 16 * 16  # frames per iteration with TINY_TRAIN
 
 
 def compose_config(name: str, *overrides: str):
-    """The Hydra config ``conf/<name>.yaml`` composed with ``overrides`` (no run dir)."""
+    """The Hydra config ``conf/<name>.yaml`` composed with ``overrides`` (no run dir), with the
+    task folders' presets on the search path as the entry points have them."""
     register()
     with initialize_config_dir(config_dir=CONFIG_PATH, version_base=None):
-        return compose(name, overrides=list(overrides))
+        return compose(name, overrides=with_task_presets(list(overrides)))
 
 
 def run_cli(module: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:

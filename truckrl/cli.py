@@ -15,7 +15,6 @@ what it accepts, and exit with code 2. ``--help`` prints the entry's template fr
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import dataclasses
 import difflib
@@ -31,6 +30,7 @@ from pathlib import Path
 from typing import Any, NoReturn, TypeVar
 
 CONFIG_PATH = str(Path(__file__).resolve().parent / "conf")  # package data: works installed too
+_TASKS = Path(__file__).resolve().parent / "tasks"  # the task folders (truckrl.tasks.task_names)
 
 T = TypeVar("T")
 
@@ -65,14 +65,6 @@ def fail(message: str) -> NoReturn:
     sys.stdout.flush()
     print("error: " + " ".join(str(message).split()), file=sys.stderr, flush=True)
     sys.exit(2)
-
-
-class OneLineArgParser(argparse.ArgumentParser):
-    """``argparse`` for the entry points without Hydra (``plan``, ``imitate``, ``diagnose``): a
-    bad option prints one line (:func:`fail`, no usage block) and exits with code 2."""
-
-    def error(self, message: str) -> NoReturn:
-        fail(message)
 
 
 def run_or_fail(run: Callable[[Any], Any], args: Any) -> int:
@@ -133,26 +125,6 @@ def key_value_config(schema: type[T], argv: list[str], prog: str, about: str = "
         fail(str(e))
 
 
-def check_scene_options(args: argparse.Namespace) -> None:
-    """The options of a command that plays a checkpoint on held-out scenes (``--episodes``,
-    ``--seed``, ``--threads``, ``--difficulty``; argparse names).
-
-    Raises:
-        ConfigError: one line naming the option and its allowed range.
-    """
-    from truckrl.config.fields import ConfigError
-    from truckrl.tasks import MAX_DIFFICULTY
-
-    if not 1 <= args.episodes <= 100_000:
-        raise ConfigError(f"--episodes = {args.episodes} must be in [1, 100000]")
-    if args.seed < 0:
-        raise ConfigError(f"--seed = {args.seed} must be >= 0")
-    if args.threads < 1:
-        raise ConfigError(f"--threads = {args.threads} must be >= 1")
-    if args.difficulty is not None and not 0 <= args.difficulty <= MAX_DIFFICULTY:
-        raise ConfigError(f"--difficulty = {args.difficulty} must be in [0, {MAX_DIFFICULTY}]")
-
-
 def to_config(schema: type[T], cfg: Any) -> T:
     """The composed Hydra config (or a plain dict) as a validated ``schema`` instance."""
     from omegaconf import OmegaConf
@@ -179,7 +151,7 @@ def compose_config(config_name: str, schema: type[T], overrides: list[str]) -> T
     register()
     try:
         with initialize_config_dir(config_dir=CONFIG_PATH, version_base=None):
-            raw = compose(config_name, overrides=list(overrides))
+            raw = compose(config_name, overrides=with_task_presets(list(overrides)))
     except ConfigError:
         raise
     except Exception as e:  # Hydra / OmegaConf composition errors
@@ -191,13 +163,58 @@ def compose_config(config_name: str, schema: type[T], overrides: list[str]) -> T
 
 
 def help_text(config_name: str) -> str:
-    """The ``--help`` template of an entry point (``conf/hydra/help/<name>.yaml``)."""
+    """The ``--help`` template of an entry point (``conf/hydra/help/<name>.yaml``), with
+    ``{tasks}`` and ``{default_task}`` filled in from the task folders."""
     import yaml
 
     path = Path(CONFIG_PATH) / "hydra" / "help" / f"{config_name}.yaml"
     if not path.is_file():  # an entry point without a template: say where its fields are
         return f"python -m truckrl.{config_name} [OVERRIDE ...]\nFields: truckrl/conf/{config_name}.yaml\n"
-    return yaml.safe_load(path.read_text())["template"].rstrip() + "\n"
+    text = yaml.safe_load(path.read_text())["template"].rstrip() + "\n"
+    names = task_folders()
+    return text.replace("{tasks}", "|".join(names)).replace("{default_task}", default_task())
+
+
+def task_folders() -> list[str]:
+    """The task folders' names, as :func:`truckrl.tasks.task_names` lists them, without importing
+    :mod:`truckrl.tasks` (its package imports torch; ``--help`` must not)."""
+    import pkgutil
+
+    return sorted(m.name for m in pkgutil.iter_modules([str(_TASKS)]) if m.ispkg)
+
+
+def default_task() -> str:
+    """:data:`truckrl.tasks.config.DEFAULT_TASK`, read from its source without importing torch."""
+    import ast
+
+    tree = ast.parse((_TASKS / "config.py").read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(
+            isinstance(t, ast.Name) and t.id == "DEFAULT_TASK" for t in node.targets
+        ):
+            return str(ast.literal_eval(node.value))
+    raise RuntimeError("truckrl/tasks/config.py defines no DEFAULT_TASK")
+
+
+def with_task_presets(argv: list[str]) -> list[str]:
+    """``argv`` with Hydra's search path extended by every task folder's ``conf/`` (its presets,
+    ``experiment=<task>``, its ``train_scenes``), after the user's ``./conf`` overlay.
+
+    A task folder holds its own presets; Hydra finds config groups only on its search path, which
+    the primary configs cannot list (they name no task). A ``hydra.searchpath=[...]`` of the
+    user's keeps its entries, first.
+    """
+    confs = [_TASKS / name / "conf" for name in task_folders()]
+    ours = [f"'file://{d.as_posix()}'" for d in confs if d.is_dir()]
+    out, merged = [], False
+    for a in argv:
+        key, sep, value = a.partition("=")
+        if sep and key.lstrip("+") == "hydra.searchpath" and value.startswith("["):
+            inner = value.strip()[1:-1].strip()
+            a, merged = f"{key}=[{', '.join(([inner] if inner else []) + ours)}]", True
+        out.append(a)
+    # first: Hydra's parser takes the overrides as one run of positional arguments (--cfg job last)
+    return out if merged else [f"hydra.searchpath=['file://conf', {', '.join(ours)}]", *out]
 
 
 # The presets' search path includes the user's ./conf overlay; run from elsewhere it is absent,
@@ -248,7 +265,8 @@ def hydra_entry(
                     cls = _schema(schema)
                     _SCHEMA[:] = [cls]
                     if prepare is not None:
-                        sys.argv[1:] = _function(prepare)(argv)
+                        argv = _function(prepare)(argv)
+                    sys.argv[1:] = with_task_presets(argv)
                     _remember_run_dir(sys.argv[1:])
                     _hydra_main(config_name, cls, fn)()
             except KeyboardInterrupt:  # Ctrl-C outside training's own handling (start-up, play)
@@ -465,15 +483,14 @@ def describe_field_error(e: Any) -> str:
         hint = f" (did you mean {parent + '.' if parent else ''}{close[0]}?)" if close else ""
         where = parent or "the top level"
         return (
-            f"unknown field {key}{hint}; python -m truckrl.config.schemas {parent} lists the fields "
-            f"of {where}"
+            f"unknown field {key}{hint}; truckrl tools configs {parent} lists the fields of {where}"
         ).replace("configs  lists", "configs lists")
     hint, spec = field_spec(key)
     if hint is not None and dataclasses.is_dataclass(hint):
         first = dataclasses.fields(hint)[0].name
         return (
             f"{key} = {value!r}: {key} is a group of fields, not a value; set a field such as "
-            f"{key}.{first}=... (python -m truckrl.config.schemas {key} lists them)"
+            f"{key}.{first}=... (truckrl tools configs {key} lists them)"
         )
     return f"{key} = {value!r} is not allowed: {accepted(hint, spec)}"
 

@@ -20,6 +20,7 @@ from truckrl.config.fields import ConfigError, param, spec_table, validate
 from truckrl.rl.config import ModelConfig, PPOConfig
 from truckrl.rl.curriculum import CurriculumConfig
 from truckrl.tasks import MAX_DIFFICULTY, EnvConfig, task_class, task_names
+from truckrl.tasks.config import DEFAULT_TASK
 from truckrl.viz.config import ViewConfig
 from truckrl.viz.keyboard import KeyboardConfig
 
@@ -412,6 +413,9 @@ def register() -> None:
     for name in task_names():
         node = structured(task_class(name).config_class)
         cs.store(group="task", name=name, node=node, package="env.task")
+    # what train.yaml and play.yaml list for the task: the default task's choice (the YAML files
+    # name no task, a task is named only in its folder); task=<name> replaces it
+    cs.store(name="default_task", node={"defaults": [{"task": DEFAULT_TASK}]})
     cs.store(group="ppo", name="paper", node=structured(PPOConfig), package="ppo")
     cs.store(
         group="curriculum", name="paper", node=structured(CurriculumConfig), package="curriculum"
