@@ -1,0 +1,68 @@
+"""A task folder's expert, found by the task's name: ``<task package>.expert`` (optional).
+
+The planner and the demonstrations never name a task; they import the module ``expert`` of the
+task's folder (``truckrl.tasks.<name>.expert``, or ``<name>.expert`` for a task outside the
+package, named by its dotted path) and read two optional attributes of it (the contract is in
+:mod:`truckrl.planning`). A folder without ``expert.py`` has neither.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from types import ModuleType
+
+from truckrl.config.fields import ConfigError
+
+#: Expert attribute: ``steering_prior(pose [N, 3], goal [N, 3], params, f [N]) -> [N, 3]``.
+STEERING_PRIOR = "steering_prior"
+#: Expert attribute: ``demonstrations(env_cfg, episodes, seed, difficulty) -> (solved, samples)``.
+DEMONSTRATIONS = "demonstrations"
+
+
+def task_package(name: str) -> str:
+    """The package of task ``name``, as :func:`truckrl.tasks.registry.task_class` reads it: the
+    folder ``truckrl.tasks.<name>``, or ``name`` itself when it is a dotted path."""
+    return name if "." in name else f"truckrl.tasks.{name}"
+
+
+def task_expert(name: str) -> ModuleType | None:
+    """The ``expert`` module of task ``name``'s folder, or None where the folder has none (an
+    expert that exists but fails to import raises)."""
+    module = f"{task_package(name)}.expert"
+    try:
+        return importlib.import_module(module)
+    except ModuleNotFoundError as e:
+        if e.name != module:
+            raise
+        return None
+
+
+def steering_prior(name: str, mode: str = "arc") -> Callable:
+    """Task ``name``'s steering prior for ``planner.steer_prior = mode``.
+
+    Raises:
+        ConfigError: the task's folder has no expert, or its expert no ``steering_prior``.
+    """
+    prior = getattr(task_expert(name), STEERING_PRIOR, None)
+    if prior is None:
+        raise ConfigError(
+            f"planner.steer_prior = {mode!r} needs a {STEERING_PRIOR}() in the expert.py of "
+            f"task {name!r}, which has none: use steer_prior=none"
+        )
+    return prior
+
+
+def scripted_demonstrations(name: str) -> Callable:
+    """Task ``name``'s own demonstrator (``demos.source = driver``).
+
+    Raises:
+        ConfigError: the task's folder has no expert, or its expert no ``demonstrations``.
+    """
+    drive = getattr(task_expert(name), DEMONSTRATIONS, None)
+    if drive is None:
+        raise ConfigError(
+            f"demos.source = driver needs a {DEMONSTRATIONS}() in the expert.py of task "
+            f"{name!r}, which has none: use demos.source=planner"
+        )
+    return drive
