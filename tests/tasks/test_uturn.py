@@ -14,10 +14,9 @@ from truckrl.env import TruckEnv
 from truckrl.sim.vehicle import truck_extents
 from truckrl.tasks.base import NUM_FEATURES
 from truckrl.tasks.config import EnvConfig
-from truckrl.tasks.uturn.task import UTurnTask, path_to_go, route_to_go, turning_point
+from truckrl.tasks.uturn.task import UTurnTask, reverse_path, route_to_go, turning_point
 
 UTURN = {"task": {"name": "uturn"}}
-PATH = {"task": {"name": "uturn", "reward": {"shaping": "path"}}}
 TOL = 1e-3  # [m] float32 round-off at coordinates of O(100 m)
 
 
@@ -323,39 +322,11 @@ def test_pulled_latches_once_level_with_the_pull_point():
     assert (td["observation"][seen, -1] == 1.0).all()
 
 
-def test_path_shaping_by_hand():
-    """Shaping path: to_go = |p - P| + |P - T| + |T - g| before the pull, |p - T| + |T - g|
-    after it, |p - g| once T is reached; no heading blend. T = (10, 0), P = (20, 0),
-    g = (0, 0); p = (3, 4) facing 90 deg off the start heading (the blend would halve the
-    route there)."""
-    task = UTurnTask(EnvConfig(task=PATH["task"]))
-    s = hand_state((3.0, 4.0, math.pi / 2, 0.0))
-    s["pull_point"] = torch.tensor([[20.0, 0.0]])
-    s["pulled"], s["reached"] = torch.tensor([0.0]), torch.tensor([0.0])
-    assert path_to_go(s).item() == pytest.approx(math.hypot(17.0, 4.0) + 20.0, rel=1e-6)
-    s["pulled"] = torch.tensor([1.0])
-    assert path_to_go(s).item() == pytest.approx(math.sqrt(65.0) + 10.0, rel=1e-6)
-    s["reached"] = torch.tensor([1.0])
-    assert path_to_go(s).item() == pytest.approx(5.0, rel=1e-6)
-    # the reward's progress term is the drop of to_go: reversing from p to (8, 1), not reached
-    before = {**s, "reached": torch.tensor([0.0])}
-    after = {**before, "pose": torch.tensor([[8.0, 1.0, math.pi / 2, 0.0]])}
-    for x in (before, after):
-        x.update(task.errors(x))
-    no = torch.tensor([False])
-    flags = {"success": no, "collision": no, "jackknife": no, "truncated": no}
-    want = 0.05 * (math.sqrt(65.0) - math.sqrt(5.0))
-    assert task.reward_terms(before, after, flags)["r_progress"].item() == pytest.approx(
-        want, rel=1e-5
-    )
-
-
-def test_reached_latches_at_the_turning_point_depth():
-    """Shaping path: T is the tractor rear axle of the reverse path's end (the in-branch start
-    at sigma = 1); ``reached`` is 1 where the rear axle's depth along the branch axis (computed
-    here from the scene metadata) is within reach_slack of T's, and a start there has it."""
-    env = TruckEnv(num_envs=400, config=PATH, seed=7)
-    env.set_difficulty(0.0)  # every start on the reverse path, most of them in the branch
+def test_reverse_path_ends_short_of_the_end_wall():
+    """The start curriculum's reverse path ends (sigma = 1) with the truck straight on the branch
+    axis, facing out, its rear-centre ``branch_end_gap`` (0.5-2 m) plus the skew of its corners
+    short of the branch end wall (branch axis and wall computed here from the scene metadata)."""
+    env = TruckEnv(num_envs=400, config=UTURN, seed=7)
     env.reset()
     s = env.get_state()
     info = s["route"]
@@ -373,24 +344,14 @@ def test_reached_latches_at_the_turning_point_depth():
     # road centreline there)
     mouth = torch.stack((info["mouth_x"], info["mouth_y"]), -1)
     mouth = mouth + 0.5 * info["road_width"][:, None] * normal
-    depth_t = ((s["turn_point"] - mouth) * axis).sum(-1)
-    depth_p = ((s["pose"][:, :2] - mouth) * axis).sum(-1)
-    want = depth_p >= depth_t - 2.0
-    assert torch.equal(s["reached"] == 1.0, want)
-    deep = info["start_sigma"] >= 0.98  # within ~1.6 m of the path's end
-    assert deep.sum() > 5 and (s["reached"][deep] == 1.0).all()
-    # T on the branch axis, and the straight truck there, facing out, has its rear-centre
-    # branch_end_gap (0.5-2 m) plus the skew of its corners short of the end wall
-    rel = s["turn_point"] - mouth
+    path = reverse_path(info, s["params"], env.task.cfg.task.start)
+    end = path.pose(torch.ones(400))[:, :2]  # tractor rear axle at the path's end
+    rel = end - mouth
     assert (rel[:, 0] * axis[:, 1] - rel[:, 1] * axis[:, 0]).abs().max() < TOL
     _, rear, half_w = truck_extents({k: s["params"][k] for k in s["params"].keys()})
-    rear_depth = ((s["turn_point"] + rear[:, None] * axis - mouth) * normal).sum(-1)
+    rear_depth = ((end + rear[:, None] * axis - mouth) * normal).sum(-1)
     short = info["branch_depth"] - rear_depth - half_w * a.cos().abs()
     assert short.min() > 0.5 - TOL and short.max() < 2.0 + TOL
-    # the observation's last feature is the phase (pulled + reached) / 2
-    td = env.reset()
-    s = env.get_state()
-    assert torch.equal(td["observation"][:, -1], 0.5 * (s["pulled"] + s["reached"]))
 
 
 def test_observe_route_extras_by_hand():

@@ -16,35 +16,13 @@
   so driving forward to the branch loses reward, and reversing straight back down the start lane
   towards the goal (heading still wrong) earns it, a dead end.
 
-  ``path`` measures progress along the manoeuvre's phases with the potential
-
-      to_go = |p - P| + |P - T| + |T - g|   until pulled,
-              |p - T| + |T - g|             until reached,
-              |p - g|                       after,
-
-  ``T`` the tractor rear axle at the end of the start curriculum's reverse path (the truck
-  straight on the branch axis, its trailer 0.5-2 m short of the end wall), ``P`` the pull
-  point below, ``reached`` a latched state entry: 1 once the rear axle has come within
-  ``reach_slack`` of ``T``'s depth along the branch axis. Why: under ``route`` (below) a policy
-  backed its trailer only 5-10 m into the branch (``T`` there lay where the truck cannot go,
-  and the heading blend paid for turning out early); from there the tractor, turning out across
-  the road, hit the far curb in 65 of 111 failed left-branch and 64 of 71 failed right-branch
-  episodes (300 scenes at difficulty 4, ``python -m truckrl.tools.diagnose``). Backing the whole truck in first leaves the tractor the
-  branch to turn in. Measured, it did worse: from scratch to the same 145 M frames, 1.6 %
-  of 1,000 unseen scenes at difficulty 4 (``best.pt`` 6.2 %) against 18.0 % with ``route``;
-  82 % of its episodes time out after pulling past the branch without backing into it, and the
-  trailer got no deeper (README, "Where the learned U-turns fail"). So ``route`` stays the
-  default.
-
-  ``route`` (default; the shaping of the first learned U-turns) measures progress with the
-  potential
+  ``route`` (default) measures progress with the potential
 
       to_go = w * (|p - T| + |T - g|) + (1 - w) * |p - g|,   w = (1 + cos(theta - theta_0)) / 2
 
   with ``p`` the tractor rear axle, ``g`` the goal, ``T`` the **turning point** (on the branch
   axis, ``turn_depth`` of the branch depth beyond the curb: :func:`turning_point`), ``theta`` the
-  tractor heading
-  and ``theta_0`` the start heading. While the truck still faces the way it started (``w = 1``)
+  tractor heading and ``theta_0`` the start heading. While the truck still faces the way it started (``w = 1``)
   the distance to go runs via the branch; once it faces back (``w = 0``) it is the straight
   distance to the goal; in between (in the branch) it blends. The heading terms stay measured
   to the goal heading: turning round is what the task asks, wherever it happens. Being a
@@ -52,11 +30,11 @@
   sparse terminal rewards, up to discounting. The pull past the branch is part of the route:
   until the tractor rear axle has been level with the **pull point** ``P`` (on the road past
   the branch, where the start curriculum's reverse path begins; the state's latched
-  ``pulled``), ``|p - T|`` reads ``|p - P| + |P - T|``. Without it the pull (about a truck length
-  away from ``T``) cost reward, and a policy trained that way drove to the mouth and stopped.
+  ``pulled``), ``|p - T|`` reads ``|p - P| + |P - T|``: the pull (about a truck length away from
+  ``T``) would otherwise cost reward, and a policy can learn to stop at the mouth.
 * Observation extras (3): signed speed / ``max_reverse_speed`` (below -1 never, < 0 reversing),
-  ``max_reverse_speed`` mapped from its configured range to [-1, 1], and the phase: ``pulled``
-  under ``route``, ``(pulled + reached) / 2`` under ``path``. With ``env.task.observe_route``
+  ``max_reverse_speed`` mapped from its configured range to [-1, 1], and the phase ``pulled``
+  (1 once the truck has pulled past the branch to ``P``). With ``env.task.observe_route``
   (9 extras; on in ``experiment=uturn``) also ``P`` and ``T`` in the tractor frame and the
   branch axis direction relative to the tractor heading.
 * Start curriculum (``env.task.start``, :meth:`UTurnTask.on_reset`): at low difficulty the
@@ -122,10 +100,9 @@ class UTurnRewardConfig:
     timeout: float = param(-8.0, doc="on timeout", source="paper")
     shaping: str = param(
         "route",
-        choices=("goal", "route", "path"),
-        doc="progress measured straight to the goal (paper), via a turning point at turn_depth "
-        "blended by heading (route), or via the reverse path's end until it is reached (path; "
-        "module doc)",
+        choices=("goal", "route"),
+        doc="progress measured straight to the goal (paper) or via a turning point at turn_depth "
+        "blended by heading (route; module doc)",
     )
     turn_depth: float = param(
         0.5,
@@ -134,14 +111,6 @@ class UTurnRewardConfig:
         unit="branch depths",
         doc="shaping=route: turning point on the branch axis, this fraction of the branch depth "
         "from the curb",
-    )
-    reach_slack: float = param(
-        2.0,
-        lo=0.0,
-        hi=50.0,
-        unit="m",
-        doc="shaping=path: the turning point counts as reached once the tractor rear axle is "
-        "this close to its depth along the branch axis",
     )
 
     def __post_init__(self) -> None:
@@ -271,18 +240,10 @@ class UTurnTask(Task):
     )
     #: ``turn_point [N, 2]`` (route shaping's ``T``), ``start_heading [N]`` (``theta_0``),
     #: ``pull_point [N, 2]`` (``P``, where the truck has pulled far enough past the branch) and
-    #: ``pulled [N]`` (1.0 once the rear axle has been level with ``P``, else 0.0).
-    #: ``turn_axis [N, 2]`` (unit vector along the branch axis into the branch) and ``reached``
-    #: ``[N]`` (1.0 once the rear axle has been within ``reach_slack`` of ``T``'s depth along
-    #: it; shaping ``path``).
-    extra_state_keys = (
-        "turn_point",
-        "start_heading",
-        "pull_point",
-        "pulled",
-        "turn_axis",
-        "reached",
-    )
+    #: ``pulled [N]`` (1.0 once the rear axle has been level with ``P``, else 0.0) and
+    #: ``turn_axis [N, 2]`` (unit vector along the branch axis into the branch;
+    #: ``observe_route``).
+    extra_state_keys = ("turn_point", "start_heading", "pull_point", "pulled", "turn_axis")
 
     def __init__(self, cfg: EnvConfig) -> None:
         super().__init__(cfg)
@@ -316,15 +277,10 @@ class UTurnTask(Task):
         counts as pulled past (route shaping then degrades to a detour through ``T``).
         """
         keys = state.keys()
-        path_shaping = self.cfg.task.reward.shaping == "path"
-        has_path = INFO_STATE_KEY in keys and "place_draw" in state[INFO_STATE_KEY].keys()
         if "start_heading" not in keys:
             state["start_heading"] = state["pose"][:, 2].clone()
         if "turn_point" not in keys:
-            if path_shaping and has_path:
-                path = reverse_path(state[INFO_STATE_KEY], state["params"], self.cfg.task.start)
-                state["turn_point"] = path.pose(torch.ones_like(state["start_heading"]))[:, :2]
-            elif INFO_STATE_KEY in keys:
+            if INFO_STATE_KEY in keys:
                 info = state[INFO_STATE_KEY]
                 state["turn_point"] = turning_point(
                     {k: info[k] for k in INFO_KEYS}, self.cfg.task.reward.turn_depth
@@ -349,29 +305,16 @@ class UTurnTask(Task):
             else:  # by hand: from the start towards T
                 rel = state["turn_point"] - state["pose"][:, :2]
                 state["turn_axis"] = rel / rel.norm(dim=-1, keepdim=True).clamp_min(1e-6)
-        if "reached" not in keys:
-            state["reached"] = self.reached(state["pose"], state).to(state["start_heading"])
         return state
 
-    def reached(self, pose: Tensor, s: Mapping[str, Any]) -> Tensor:
-        """``[N]`` bool: the tractor rear axle of ``pose [N, 4]`` is within ``reach_slack`` of the
-        turning point's depth along the branch axis, or beyond it."""
-        rel = pose[:, :2] - s["turn_point"]
-        depth = (rel * s["turn_axis"]).sum(-1)
-        return depth >= -self.cfg.task.reward.reach_slack
-
     def step(self, s: dict[str, Any], action: Tensor) -> dict[str, Tensor]:
-        """The shared step; ``pulled`` latches once the rear axle is level with ``P`` and
-        ``reached`` once it is within ``reach_slack`` of ``T``'s depth (a state without
-        ``pulled``, built by hand for the kinematics alone, steps without them)."""
+        """The shared step; ``pulled`` latches once the rear axle is level with ``P`` (a state
+        without ``pulled``, built by hand for the kinematics alone, steps without it)."""
         new = super().step(s, action)
         if "pulled" not in s:
             return new
         ahead = pulled_past(new["pose"], s).to(s["pulled"])
         new["pulled"] = torch.maximum(s["pulled"], ahead)
-        if "reached" in s:
-            deep = self.reached(new["pose"], s).to(s["reached"])
-            new["reached"] = torch.maximum(s["reached"], deep)
         return new
 
     def on_reset(self, state: TensorDict, difficulty: Tensor) -> TensorDict:
@@ -456,7 +399,6 @@ class UTurnTask(Task):
         state["pose"] = new_pose
         state.update(self.errors(state))
         state["pulled"] = (on_path | pulled_past(new_pose, state)).to(state["pulled"])
-        state["reached"] = self.reached(new_pose, state).to(state["reached"])
         kind = torch.where(
             sigma < path.arc_from,
             START_PAST,
@@ -482,8 +424,6 @@ class UTurnTask(Task):
         failed = flags["collision"] | flags["jackknife"]
         if w.shaping == "route":
             progress = route_to_go(before) - route_to_go(after)
-        elif w.shaping == "path":
-            progress = path_to_go(before) - path_to_go(after)
         else:
             progress = before["pos_error"] - after["pos_error"]
         return {
@@ -499,10 +439,10 @@ class UTurnTask(Task):
         }
 
     def observation_extras(self, s: dict[str, Any]) -> Tensor:
-        """``[N, 3]`` (``[N, 9]`` with ``env.task.observe_route``): signed speed / ``max_reverse_speed``; ``max_reverse_speed`` mapped from
-        ``env.vehicle.max_reverse_speed`` to [-1, 1] (0 for a range of one value); the phase,
-        which the shaping rewards differently: ``pulled`` (1 once the truck has pulled far
-        enough past the branch) under ``route``, ``(pulled + reached) / 2`` under ``path``.
+        """``[N, 3]`` (``[N, 9]`` with ``env.task.observe_route``): signed speed /
+        ``max_reverse_speed``; ``max_reverse_speed`` mapped from ``env.vehicle.max_reverse_speed``
+        to [-1, 1] (0 for a range of one value); the phase ``pulled`` (1 once the truck has
+        pulled far enough past the branch, where route shaping's distance to go changes form).
         With ``observe_route``: then ``P`` and ``T`` in the tractor frame (x, y each, / the
         sensor scale) and the sine and cosine of the branch axis heading minus the tractor
         heading."""
@@ -511,10 +451,7 @@ class UTurnTask(Task):
         lo, hi = self.cfg.vehicle.max_reverse_speed
         span = hi - lo
         norm = (v_rev - 0.5 * (lo + hi)) * (2.0 / span) if span > 0 else v_rev * 0.0
-        phase = s["pulled"]
-        if self.cfg.task.reward.shaping == "path":
-            phase = 0.5 * (s["pulled"] + s["reached"])
-        extras = torch.stack((s["speed"] / v_rev, norm, phase), -1)
+        extras = torch.stack((s["speed"] / v_rev, norm, s["pulled"]), -1)
         if not self.cfg.task.observe_route:
             return extras
         pose = s["pose"]
@@ -539,18 +476,6 @@ def route_to_go(s: dict[str, Any]) -> Tensor:
         before_pull = (p - pp).norm(dim=-1) + (pp - t).norm(dim=-1) + (t - g).norm(dim=-1)
         via = torch.where(pulled > 0.5, via, before_pull)
     return w * via + (1.0 - w) * (p - g).norm(dim=-1)
-
-
-def path_to_go(s: dict[str, Any]) -> Tensor:
-    """Shaping ``path``'s distance to go ``[N]`` [m] (module doc): ``|p - P| + |P - T| + |T - g|``
-    until ``pulled``, then ``|p - T| + |T - g|`` until ``reached``, then ``|p - g|``; ``T`` the
-    tractor rear axle at the end of the reverse path (deep in the branch)."""
-    p, g, t, pp = s["pose"][:, :2], s["goal"][:, :2], s["turn_point"], s["pull_point"]
-    via = (p - t).norm(dim=-1) + (t - g).norm(dim=-1)
-    before_pull = (p - pp).norm(dim=-1) + (pp - t).norm(dim=-1) + (t - g).norm(dim=-1)
-    direct = (p - g).norm(dim=-1)
-    to_go = torch.where(s["pulled"] > 0.5, via, before_pull)
-    return torch.where(s["reached"] > 0.5, direct, to_go)
 
 
 def pulled_past(pose: Tensor, s: Mapping[str, Any]) -> Tensor:
