@@ -1,9 +1,9 @@
-"""Env adapters over the task core: :class:`TruckEnv`, a batched TorchRL ``EnvBase``."""
+"""Env adapters over the task core: :class:`TruckEnv`, a batched TorchRL ``EnvBase``.
 
+Keys, shapes and the observation table: :mod:`truckrl.env.spec`.
+"""
+
+from truckrl.env.spec import LIDAR_KEY, OBS_KEY
 from truckrl.env.truck_env import TruckEnv
-
-#: Observation keys of the specs: the numeric features and the LiDAR ranges.
-OBS_KEY = "observation"
-LIDAR_KEY = "lidar"
 
 __all__ = ["LIDAR_KEY", "OBS_KEY", "TruckEnv"]

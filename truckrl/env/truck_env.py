@@ -3,57 +3,12 @@
 One :class:`TruckEnv` holds ``num_envs`` independent episodes as tensors (``batch_size=[N]``); every
 physics, collision and LiDAR step is one set of tensor ops over all N, on CPU or CUDA. The env is a
 thin adapter: what happens in a step is :meth:`truckrl.tasks.base.Task.transition`; the env owns
-the specs, the episode pool and partial resets, seeding and the curriculum difficulty. Stack
-several with ``ParallelEnv(W, lambda: TruckEnv(num_envs=n))`` for a ``[W, n]`` batch.
-
-Spec tree (``*B`` = batch dims, ``R`` = LiDAR beams; the intersection task's keys)::
-
-    observation  float32 [*B, 26]  numeric features (table below; a task may append extras)
-    lidar        float32 [*B, R]   first-hit range / max_range, in [0, 1]
-    action       float32 [*B, 2]   [-1, 1]: (longitudinal, lateral) command, scaled to the
-                                   control mode's per-truck limit (see truckrl.sim.control)
-    reward       float32 [*B, 1]
-    done / terminated / truncated  bool [*B, 1]
-    info (also in the observation spec, logged by training):
-      success, collision, jackknife, action_nonfinite   bool [*B, 1]
-      r_progress, r_tractor_heading, r_trailer_heading,
-      r_time, r_success, r_collision, r_timeout         float32 [*B, 1]  reward terms (sum = reward)
-      pos_error [m], tractor_heading_error [rad],
-      trailer_heading_error [rad]                       float32 [*B, 1]  current errors to the goal
-      step_count int64 [*B, 1];  difficulty float32 [*B, 1]
-
-Numeric observation (index -> meaning -> normalisation). ``theta`` tractor heading, ``phi``
-articulation, ``psi_g`` goal heading; geometry and limits map their configured ``[min, max]``
-range onto ``[-1, 1]``:
-
-=====  ==================================================  ==============================
-index  meaning                                             normalisation
-=====  ==================================================  ==============================
-0, 1   goal rear axle in the tractor frame (x fwd, y left)  / 50 m (paper)
-2, 3   sin, cos of (psi_g - theta)                         -
-4, 5   sin, cos of (psi_g - theta - phi)  (trailer)        -
-6, 7   sin, cos of phi                                     -
-8..13  speed, accel, jerk, steer, steer rate, steer accel  / their per-truck limit
-14     wheelbase L_t                                       range -> [-1, 1]
-15     kingpin offset a_tk                                 range -> [-1, 1]
-16     trailer wheelbase L_ka                              range -> [-1, 1]
-17     tractor front overhang                              range -> [-1, 1]
-18     tractor rear overhang                               range -> [-1, 1]
-19     tractor width                                       range -> [-1, 1]
-20     trailer rear overhang                               range -> [-1, 1]
-21     trailer width                                       range -> [-1, 1]
-22     max steering angle                                  range -> [-1, 1]
-23     max speed                                           range -> [-1, 1]
-24     limit of the longitudinal command (mode's)          range -> [-1, 1]
-25     limit of the lateral command (mode's)               range -> [-1, 1]
-=====  ==================================================  ==============================
-
-The LiDAR sits at the centre of the tractor body; beam ``i`` points ``beam_angles(R, fov)[i]``
-from the tractor heading. Reward, success and termination: :mod:`truckrl.tasks.intersection.task`.
-Termination: success, collision or jack-knife -> ``terminated``; step limit -> ``truncated``.
-Non-finite actions are replaced by 0 before they touch the state (no host sync needed to detect
-them) and flagged in ``action_nonfinite``; ``nonfinite_action="error"`` raises instead (that check
-syncs with the device every step, so it is a debugging option).
+the specs (keys, shapes and the observation table: :mod:`truckrl.env.spec`), partial resets,
+seeding and the curriculum difficulty. Fresh episodes come from an
+:class:`~truckrl.env.pool.EpisodePool`, the step reads the scene through a
+:class:`~truckrl.env.compaction.CompactScene`, and ``step_and_maybe_reset`` restarts trucks in
+place (:mod:`truckrl.env.autoreset`). Stack several with
+``ParallelEnv(W, lambda: TruckEnv(num_envs=n))`` for a ``[W, n]`` batch.
 
 State: :meth:`TruckEnv.get_state` returns a copy of the full state (layout in
 :mod:`truckrl.tasks.base`); :meth:`TruckEnv.set_state` starts every truck from a given state;
@@ -68,17 +23,20 @@ from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from truckrl.config.fields import ConfigError, build, check_range
+from truckrl.env.autoreset import InPlaceAutoReset
+from truckrl.env.compaction import CompactScene
+from truckrl.env.pool import EpisodePool, Leaves, Observation
+from truckrl.env.spec import build_specs
 from truckrl.sim.compiled import compile_sim
 from truckrl.sim.control import CONTROL_KEYS
 from truckrl.sim.vehicle import PARAM_KEYS, REVERSE_KEYS
 from truckrl.tasks import FLAG_KEYS, MAX_DIFFICULTY, EnvConfig, Task, make_task
 
 
-class TruckEnv(EnvBase):
+class TruckEnv(InPlaceAutoReset, EnvBase):
     """Batched tractor-trailer environment; see the module docstring for specs and state.
 
     Args:
@@ -105,17 +63,25 @@ class TruckEnv(EnvBase):
         self.num_envs = num_envs
         self.task = make_task(self.config).to(self.device)
         self._state: TensorDict | None = None
-        self._pool: dict[str | tuple[str, ...], torch.Tensor] | None = None  # see _take
-        self._pool_obs: dict[str, torch.Tensor] | None = None  # first observations, see _take
         self._restore: TensorDictBase | None = None  # state for the next reset (set_state)
-        self._scene: tuple[torch.Tensor, torch.Tensor] | None = None  # see _compact_scene
+        self._scene = CompactScene(grow_only=self.config.compile)
         self._difficulty = torch.full(
             (num_envs,), self.config.tolerance.difficulty, device=self.device
         )
         self._state_keys = ("pose", "goal", "segments", "mask", "step_count", *CONTROL_KEYS)
         self._state_keys += (*self.task.error_keys, *self.task.extra_state_keys)
         self._param_keys = (*PARAM_KEYS, *(REVERSE_KEYS if self.task.reverse else ()))
-        self._make_specs()
+        specs = build_specs(self.task, num_envs, self.config.lidar.num_beams, self.device)
+        for name, spec in specs.items():
+            setattr(self, name, spec)
+        #: Leaves a reset sets to zero / False: reward terms, flags and done signals.
+        self._reset_zero_keys = frozenset(
+            (*self.task.reward_keys, *FLAG_KEYS, "done", "terminated", "truncated")
+        )
+        #: (key, shape, dtype) of every observation leaf, for the zero rows of a partial reset.
+        self._obs_zero = tuple(
+            (k, tuple(spec.shape), spec.dtype) for k, spec in self.observation_spec.items()
+        )
         compile_fn = (
             (lambda f: compile_sim(f, self.device)) if self.config.compile else (lambda f: f)
         )
@@ -131,40 +97,16 @@ class TruckEnv(EnvBase):
         )
         # a task without a start curriculum keeps drawn episodes as they are: the pool then holds
         # their first observation too, and a partial reset copies plain tensors and never
-        # builds a TensorDict or observes (see _take and _restart)
+        # builds a TensorDict or observes (see _restart)
         self._plain_reset = type(self.task).on_reset is Task.on_reset
+        self._pool = EpisodePool(
+            self._draw,
+            self.config.episode_pool,
+            self._first_observation if self._plain_reset else None,
+        )
         if seed is None:
             seed = int(torch.empty((), dtype=torch.int64).random_().item())
         self.set_seed(seed)
-
-    def _make_specs(self) -> None:
-        n, r, dev = self.num_envs, self.config.lidar.num_beams, self.device
-        col = (n, 1)
-        info = {k: Categorical(2, col, dtype=torch.bool, device=dev) for k in FLAG_KEYS}
-        for k in (*self.task.reward_keys, *self.task.error_keys, "difficulty"):
-            info[k] = Unbounded(col, dtype=torch.float32, device=dev)
-        info["step_count"] = Unbounded(col, dtype=torch.int64, device=dev)
-        self.observation_spec = Composite(
-            observation=Unbounded((n, self.task.num_features), dtype=torch.float32, device=dev),
-            lidar=Bounded(0.0, 1.0, (n, r), dtype=torch.float32, device=dev),
-            **info,
-            shape=(n,),
-            device=dev,
-        )
-        #: Leaves a reset sets to zero / False: reward terms, flags and done signals.
-        self._reset_zero_keys = frozenset(
-            (*self.task.reward_keys, *FLAG_KEYS, "done", "terminated", "truncated")
-        )
-        #: (key, shape, dtype) of every observation leaf, for the zero rows of a partial reset.
-        self._obs_zero = tuple(
-            (k, tuple(spec.shape), spec.dtype) for k, spec in self.observation_spec.items()
-        )
-        self.action_spec = Bounded(-1.0, 1.0, (n, 2), dtype=torch.float32, device=dev)
-        self.reward_spec = Unbounded(col, dtype=torch.float32, device=dev)
-        done = Categorical(2, col, dtype=torch.bool, device=dev)
-        self.done_spec = Composite(
-            done=done, terminated=done.clone(), truncated=done.clone(), shape=(n,), device=dev
-        )
 
     # ------------------------------------------------------------------ seeding / curriculum
     def _set_seed(self, seed: int | None) -> None:
@@ -172,7 +114,7 @@ class TruckEnv(EnvBase):
             seed = int(torch.empty((), dtype=torch.int64).random_().item())
         self.rng = torch.Generator(device=self.device)
         self.rng.manual_seed(int(seed))
-        self._pool = self._pool_obs = None
+        self._pool.clear()
 
     def set_difficulty(self, difficulty: float) -> None:
         """Set the curriculum difficulty ``d`` (>= 0) for every truck; used from the next step on.
@@ -224,61 +166,27 @@ class TruckEnv(EnvBase):
             raise RuntimeError("params needs reset() first")
         return self._state["params"]
 
-    # ------------------------------------------------------------------ reset / step
-    def _new_episodes(self, m: int) -> TensorDict:
-        """``m`` fresh episodes (a TensorDict ``[m]``) from the pool (see :meth:`_take`)."""
-        return self._as_tensordict(self._take(m)[0], m)
+    # ------------------------------------------------------------------ fresh episodes
+    def _draw(self, k: int) -> Leaves:
+        """``k`` fresh episodes from the task's generator (the pool's refill)."""
+        td = self.task.sample(k, self.rng, self.device)
+        return dict(td.items(include_nested=True, leaves_only=True))
 
-    def _as_tensordict(
-        self, leaves: dict[str | tuple[str, ...], torch.Tensor], m: int
-    ) -> TensorDict:
+    def _first_observation(self, leaves: Leaves) -> Observation:
+        """First observation of drawn episodes, the ``difficulty`` column left out: a task
+        without a start curriculum observes the same at every difficulty but that column, and
+        :meth:`_restart` adds each truck's own."""
+        zeros = torch.zeros(next(iter(leaves.values())).shape[0], device=self.device)
+        obs = self._observe_rows(self._flat_rows(leaves), zeros)
+        del obs["difficulty"]
+        return obs
+
+    def _as_tensordict(self, leaves: Leaves, m: int) -> TensorDict:
         """State leaves ``{leaf key: [m, ...]}`` as a (nested) TensorDict ``[m]``."""
         td = TensorDict({}, batch_size=[m], device=self.device)
         for key, value in leaves.items():
             td.set(key, value)
         return td
-
-    def _take(
-        self, m: int
-    ) -> tuple[dict[str | tuple[str, ...], torch.Tensor], dict[str, torch.Tensor] | None]:
-        """The next ``m`` episodes of the pool: ``({state leaf key: [m, ...]}, observation)``.
-
-        One scene alone costs ~17 ms, ~40 us each in batches of 256, and a training batch resets
-        a few trucks every step, so episodes are made ahead, ``episode_pool`` at a time, and
-        handed out in order. The pool is kept as plain tensors, one per state leaf: taking rows
-        is one slice per leaf, where slicing a nested TensorDict cost ~0.5 ms per reset.
-        :meth:`set_seed` clears the pool, so a seed still fixes the sequence of scenes.
-
-        For a task without a start curriculum (``on_reset`` the identity) the pool also holds
-        each episode's first observation ``{key: [m, ...]}`` (the ``difficulty`` column left
-        out: the caller adds the truck's own), computed once per refill for the whole batch, so
-        a partial reset observes nothing itself. A row's observation does not depend on the
-        other rows of its batch, so it is the one a reset of that truck alone would compute.
-        Otherwise the observation is ``None``.
-        """
-        pool, pool_obs = self._pool, self._pool_obs
-        size = 0 if pool is None else next(iter(pool.values())).shape[0]
-        if size < m:
-            k = max(m, self.config.episode_pool)
-            td = self.task.sample(k, self.rng, self.device)
-            fresh = dict(td.items(include_nested=True, leaves_only=True))
-            fresh_obs = None
-            if self._plain_reset:
-                zeros = torch.zeros(k, device=self.device)
-                fresh_obs = self._observe_rows(self._flat_rows(fresh), zeros)
-                del fresh_obs["difficulty"]
-            if pool is None:
-                pool, pool_obs = fresh, fresh_obs
-            else:
-                pool = {key: torch.cat((pool[key], fresh[key])) for key in fresh}
-                if fresh_obs is not None:
-                    pool_obs = {
-                        key: torch.cat((pool_obs[key], fresh_obs[key])) for key in fresh_obs
-                    }
-        self._pool = {key: v[m:] for key, v in pool.items()}
-        self._pool_obs = None if pool_obs is None else {key: v[m:] for key, v in pool_obs.items()}
-        taken_obs = None if pool_obs is None else {key: v[:m] for key, v in pool_obs.items()}
-        return {key: v[:m] for key, v in pool.items()}, taken_obs
 
     def _flat_rows(self, leaves: Any) -> dict[str, Any]:
         """State leaves (``{leaf key: [m, ...]}`` or a state TensorDict) as the flat state the
@@ -287,63 +195,23 @@ class TruckEnv(EnvBase):
         flat["params"] = {k: leaves["params", k] for k in self._param_keys}
         return flat
 
-    def _observe_rows(
-        self, flat: dict[str, Any], difficulty: torch.Tensor
-    ) -> dict[str, torch.Tensor]:
+    def _observe_rows(self, flat: dict[str, Any], difficulty: torch.Tensor) -> Observation:
         """:meth:`Task.observe` of a few rows ``[m]``: compiled with a symbolic batch size under
         ``env.compile`` (a count of 1 would be a graph of its own, so it runs eagerly)."""
         if self._observe_rows_fn is not None and difficulty.shape[0] > 1:
             return dict(self._observe_rows_fn(flat, difficulty))
         return dict(self.task.observe(flat, difficulty))
 
-    def _flat_state(self, index: torch.Tensor | None = None) -> dict[str, Any]:
-        """The state (rows ``index``, default all) as plain tensors, ``params`` as a dict.
-
-        For all rows, ``segments`` and ``mask`` are the compacted scene of :meth:`_compact_scene`.
-        """
-        flat = self._flat_rows(self._state if index is None else self._state[index])
-        if index is None and self._scene is not None:
-            flat["segments"], flat["mask"] = self._scene
+    def _flat_state(self) -> dict[str, Any]:
+        """The whole state as plain tensors, ``params`` as a dict, and ``segments`` and ``mask``
+        the compacted scene (:class:`~truckrl.env.compaction.CompactScene`)."""
+        flat = self._flat_rows(self._state)
+        if self._scene.view is not None:
+            flat["segments"], flat["mask"] = self._scene.view
         return flat
 
-    def _compact_scene(self, index: torch.Tensor | None = None) -> None:
-        """Keep the step's scene as ``[N, W, 4]`` segments and ``[N, W]`` mask, valid first.
-
-        The step only reads the segments as a set (LiDAR: the minimum over segments of each
-        beam's range; collision: any segment touching a body), and a padding segment (mask
-        ``False``) contributes nothing to either (``+inf`` range, no contact). So each row's
-        valid segments are moved to the front (stable sort on the mask) and the batch is cut
-        to ``W`` = the largest valid count rounded up to a multiple of 8 (few distinct shapes
-        for ``torch.compile``): every valid segment is kept and only padding is dropped, so the
-        outputs are bit-identical while the pair tests shrink by ``E / W`` (72 -> 56 for the
-        default intersection scenes at N = 1,024). Recomputed for the rows ``index`` reset
-        (default all); the one host read (``W``) happens in the reset path, which syncs anyway.
-        With ``env.compile`` the width only grows (a high-water mark), so a small batch whose
-        largest scene varies from episode to episode compiles a few graphs, not one per width.
-
-        The segments are stored coordinate-major (``[N, 4, E]`` in memory, seen as ``[N, E, 4]``):
-        each coordinate of a row's segments is contiguous, so the compiled body clips and the
-        LiDAR's rotation vectorise over segments (the clip kernel 0.29 -> 0.21 ms per step at
-        N = 1,024), and the eager step's elementwise passes read them as vectors too.
-        """
-        seg, mask = self._state["segments"], self._state["mask"]
-        if index is None:
-            self._cseg = seg.new_empty(seg.shape[0], seg.shape[2], seg.shape[1]).transpose(1, 2)
-            self._cmask = torch.empty_like(mask)
-            self._counts = torch.empty(mask.shape[0], dtype=torch.int64, device=mask.device)
-            index = slice(None)
-        rows_mask = mask[index]
-        order = torch.argsort((~rows_mask).to(torch.uint8), dim=-1, stable=True)
-        self._cseg[index] = seg[index].gather(-2, order.unsqueeze(-1).expand(*order.shape, 4))
-        self._cmask[index] = rows_mask.gather(-1, order)
-        self._counts[index] = rows_mask.sum(-1)
-        e = mask.shape[-1]
-        width = min(e, max(8, -(-int(self._counts.max()) // 8) * 8)) if e else 0
-        if self.config.compile:  # only grow: each new width is a new graph to compile
-            width = self._width = max(width, getattr(self, "_width", 0))
-        self._scene = (self._cseg[:, :width], self._cmask[:, :width])
-
-    def _restart(self, idx: torch.Tensor) -> dict[str, torch.Tensor]:
+    # ------------------------------------------------------------------ reset / step
+    def _restart(self, idx: torch.Tensor) -> Observation:
         """Start fresh episodes for the trucks ``idx`` (``[m]`` int64, ``m >= 1``) in the state
         and return their first observation ``{key: [m, ...]}``.
 
@@ -351,13 +219,13 @@ class TruckEnv(EnvBase):
         trucks' difficulty; the observation comes from the pool where it holds one.
         """
         difficulty = self._difficulty[idx]
-        fresh, obs = self._take(idx.numel())
+        fresh, obs = self._pool.take(idx.numel())
         if not self._plain_reset:
             td = self.task.on_reset(self._as_tensordict(fresh, idx.numel()), difficulty)
             fresh = dict(td.items(include_nested=True, leaves_only=True))
         for key, value in fresh.items():
             self._state.get(key).index_put_((idx,), value)
-        self._compact_scene(idx)
+        self._scene.update(self._state["segments"], self._state["mask"], idx)
         if obs is None:
             return self._observe_rows(self._flat_rows(fresh), difficulty)
         return {**obs, "difficulty": difficulty[:, None]}
@@ -371,8 +239,8 @@ class TruckEnv(EnvBase):
         On a partial reset only the reset rows of the returned tensordict are meaningful: TorchRL
         merges them with ``where(_reset, new, old)``, so the other rows are left at zero and the
         observation (LiDAR included) is the reset trucks' alone (see :meth:`_restart`).
-        :meth:`step_and_maybe_reset` (what rollouts and collectors call) does not come here: it
-        restarts the trucks itself (:meth:`_step_and_maybe_reset`).
+        ``step_and_maybe_reset`` (what rollouts and collectors call) does not come here: it
+        restarts the trucks itself (:mod:`truckrl.env.autoreset`).
         """
         reset = None if tensordict is None else tensordict.get("_reset", None)
         n = self.num_envs
@@ -380,13 +248,14 @@ class TruckEnv(EnvBase):
             if self._restore is not None:
                 self._state, self._restore = self._restore, None
             else:
-                self._state = self.task.on_reset(self._new_episodes(n), self._difficulty)
-            self._compact_scene()
+                fresh = self._as_tensordict(self._pool.take(n)[0], n)
+                self._state = self.task.on_reset(fresh, self._difficulty)
+            self._scene.update(self._state["segments"], self._state["mask"])
             cols = dict(self._observe_fn(self._flat_state(), self._difficulty))
         else:
             idx = reset.reshape(n).nonzero().squeeze(-1)  # one sync per reset call
-            # Plain tensors and per-leaf index_put_ instead of Composite.zero() (which builds
-            # through TensorDict.from_dict, ~1-3 ms) and TensorDict indexing: same values.
+            # plain tensors and per-leaf index_put_ (same values as Composite.zero() and
+            # TensorDict indexing, without building TensorDicts)
             cols = {
                 k: torch.zeros(shape, dtype=dt, device=self.device)
                 for k, shape, dt in self._obs_zero
@@ -412,48 +281,3 @@ class TruckEnv(EnvBase):
         new, out = self._transition_fn(action, self._flat_state(), self._difficulty)
         self._state.update(new)
         return TensorDict(out, batch_size=[self.num_envs], device=self.device)
-
-    def _step_and_maybe_reset(
-        self, tensordict: TensorDictBase
-    ) -> tuple[TensorDictBase, TensorDictBase]:
-        """One step, then fresh episodes for the trucks it ended: what TorchRL's
-        ``step_and_maybe_reset`` does, with the reset rows written straight into the next root.
-
-        TorchRL's generic path (``maybe_reset`` -> ``reset(select_reset_only=True)`` ->
-        ``_reset`` -> ``where``-merge over every key) builds a full-size reset tensordict of
-        zeros and merges it key by key. Here each observation leaf of the root is copied once
-        and the restarted rows written into it, and the root's other leaves get what that merge
-        gives them: zeros on the restarted rows for the reward terms, flags and done signals,
-        and for anything else at the root (the action, a policy's outputs) zeros on those rows
-        too when only some trucks restart (the merge's zero padding), but their old values when
-        all of them do (TorchRL then updates the root instead of merging). Same outputs bit for
-        bit (``tests/test_env.py`` checks it against TorchRL's path), ~1 ms less per step at
-        N = 1,024, with the restarted trucks' observation taken from the episode pool (see
-        :meth:`_take`). TorchRL's own path runs where this one does not apply (post-step hooks,
-        native autoreset).
-        """
-        if self._post_step_mdp_hooks is not None or self.__dict__.get(
-            "_torchrl_native_autoreset", False
-        ):
-            return super()._step_and_maybe_reset(tensordict)
-        if tensordict.device != self.device:
-            tensordict = tensordict.to(self.device)
-        tensordict = self.step(tensordict)
-        root = self._step_mdp(tensordict)
-        ended = root.get("done").reshape(self.num_envs)
-        idx = ended.nonzero().squeeze(-1)  # one sync per step, as TorchRL's any_done
-        if idx.numel():
-            obs = self._restart(idx)
-            every = idx.numel() == self.num_envs
-            for key, value in list(root.items(include_nested=True, leaves_only=True)):
-                if key in obs:  # copy: the old tensor is also the transition's "next" entry
-                    new = value.clone()
-                    new.index_put_((idx,), obs[key])
-                elif isinstance(value, torch.Tensor) and (
-                    key in self._reset_zero_keys or not every
-                ):
-                    new = value.masked_fill(ended.view(-1, *(1,) * (value.ndim - 1)), 0)
-                else:  # every truck restarts: TorchRL keeps the other root entries as they are
-                    continue
-                root.set(key, new)
-        return tensordict, root
