@@ -49,8 +49,8 @@ def workers_ignore_stop_signals(module_name: str) -> None:
 
     A Ctrl-C reaches the whole process group, SLURM signals every process of a job: the trainer
     stops on them and closes its workers; a worker killed by the same signal would print a
-    traceback and stall the shutdown. The workers inherit nothing from the parent's
-    handlers, and a parent-side ``SIG_IGN`` while they start would drop signals meant for it.
+    traceback and stall the shutdown. Workers inherit no handlers, and a parent-side ``SIG_IGN``
+    while they start would drop signals meant for the parent.
     """
     if module_name == "__mp_main__":
         import signal
@@ -76,7 +76,8 @@ def run_or_fail(run: Callable[[Any], Any], args: Any) -> int:
     try:
         run(args)
     except (ConfigError, CheckpointError) as e:
-        print(f"error: {e}", file=sys.stderr)
+        sys.stdout.flush()
+        print("error: " + " ".join(str(e).split()), file=sys.stderr, flush=True)
         return 2
     return 0
 
@@ -100,6 +101,8 @@ def key_value_config(schema: type[T], argv: list[str], prog: str, about: str = "
         lines = [f"usage: {prog} [KEY=VALUE ...]", *([about] if about else []), "", "keys:"]
         for name, default, unit, allowed, doc in rows:
             unit_text = f" [{unit}]" if unit else ""
+            allowed = allowed.replace("(-inf, inf)", "any")  # a string, or a number without range
+            default = default if default != "" else "''"
             lines.append(f"  {name:<{width}}  {doc}{unit_text}; {allowed}; default {default}")
         print("\n".join(lines))
         sys.exit(0)
@@ -171,8 +174,8 @@ def help_text(config_name: str) -> str:
     if not path.is_file():  # an entry point without a template: say where its fields are
         return f"python -m truckrl.{config_name} [OVERRIDE ...]\nFields: truckrl/conf/{config_name}.yaml\n"
     text = yaml.safe_load(path.read_text())["template"].rstrip() + "\n"
-    names = task_folders()
-    return text.replace("{tasks}", "|".join(names)).replace("{default_task}", default_task())
+    tasks = "|".join(task_folders())
+    return text.replace("{tasks}", tasks).replace("{default_task}", default_task())
 
 
 def task_folders() -> list[str]:
@@ -185,25 +188,18 @@ def task_folders() -> list[str]:
 
 def default_task() -> str:
     """:data:`truckrl.tasks.config.DEFAULT_TASK`, read from its source without importing torch."""
-    import ast
+    import re
 
-    tree = ast.parse((_TASKS / "config.py").read_text())
-    for node in tree.body:
-        if isinstance(node, ast.Assign) and any(
-            isinstance(t, ast.Name) and t.id == "DEFAULT_TASK" for t in node.targets
-        ):
-            return str(ast.literal_eval(node.value))
-    raise RuntimeError("truckrl/tasks/config.py defines no DEFAULT_TASK")
+    found = re.search(r'^DEFAULT_TASK = "([\w.]+)"', (_TASKS / "config.py").read_text(), re.M)
+    if found is None:
+        raise RuntimeError("truckrl/tasks/config.py defines no DEFAULT_TASK")
+    return found.group(1)
 
 
 def with_task_presets(argv: list[str]) -> list[str]:
-    """``argv`` with Hydra's search path extended by every task folder's ``conf/`` (its presets,
-    ``experiment=<task>``, its ``train_scenes``), after the user's ``./conf`` overlay.
-
-    A task folder holds its own presets; Hydra finds config groups only on its search path, which
-    the primary configs cannot list (they name no task). A ``hydra.searchpath=[...]`` of the
-    user's keeps its entries, first.
-    """
+    """``argv`` with every task folder's ``conf/`` (its presets: ``experiment=<task>``, its
+    ``train_scenes``) on Hydra's search path after ``./conf``: the primary configs name no task,
+    so they cannot list them. A user's ``hydra.searchpath=[...]`` keeps its entries, first."""
     confs = [_TASKS / name / "conf" for name in task_folders()]
     ours = [f"'file://{d.as_posix()}'" for d in confs if d.is_dir()]
     out, merged = [], False
@@ -223,11 +219,8 @@ warnings.filterwarnings("ignore", message=r"provider=hydra\.searchpath in main, 
 
 
 def exit_on_help(config_name: str) -> None:
-    """Print the help template of ``config_name`` and exit 0 when the command line asks for help.
-
-    An entry module whose own imports are heavy calls this first, under ``if __name__ ==
-    "__main__"``, so that ``--help`` answers before torch is imported.
-    """
+    """Print the help template of ``config_name`` and exit 0 when the command line asks for help
+    (an entry module with heavy imports calls this first, so ``--help`` loads no torch)."""
     if {"-h", "--help"} & set(sys.argv[1:]):
         sys.stdout.write(help_text(config_name))
         sys.exit(0)
@@ -279,20 +272,14 @@ def hydra_entry(
 
 
 def _function(f: Callable | str) -> Callable:
-    if isinstance(f, str):
-        import importlib
+    import importlib
 
-        module, _, name = f.partition(":")
-        return getattr(importlib.import_module(module), name)
-    return f
+    module, _, name = f.partition(":") if isinstance(f, str) else ("", "", "")
+    return getattr(importlib.import_module(module), name) if module else f
 
 
 def _schema(schema: type | str) -> type:
-    if isinstance(schema, str):
-        import truckrl.config.schemas
-
-        return getattr(truckrl.config.schemas, schema)
-    return schema
+    return _function(f"truckrl.config.schemas:{schema}") if isinstance(schema, str) else schema
 
 
 def _hydra_main(config_name: str, cls: type, fn: Callable) -> Callable[[], None]:

@@ -2,7 +2,8 @@
 
 from torch.utils.tensorboard import SummaryWriter
 
-from truckrl.viz.curves import main, milestones, render, smooth
+from truckrl.tools.curves import main
+from truckrl.viz.curves import milestones, render, smooth
 
 
 def _write_run(tmp_path):
@@ -16,7 +17,7 @@ def _write_run(tmp_path):
 
 def test_milestones_and_png(tmp_path, capsys):
     _write_run(tmp_path)
-    assert main([str(tmp_path), "--out", str(tmp_path / "c.png")]) == 0
+    assert main([f"run={tmp_path}", f"out={tmp_path / 'c.png'}"]) == 0
     assert (tmp_path / "c.png").stat().st_size > 1000
     out = capsys.readouterr().out
     assert "| 0.5 |" in out and "| 1 |" in out
@@ -28,6 +29,9 @@ def test_milestones_and_png(tmp_path, capsys):
     assert img.shape == (360, 400, 3)
 
 
-def test_smooth_is_a_moving_average_and_missing_run_fails(tmp_path):
+def test_smooth_is_a_moving_average_and_missing_run_fails(tmp_path, capsys):
     assert smooth([1.0, 2.0, 3.0, 4.0, 5.0], 3).tolist() == [1.5, 2.0, 3.0, 4.0, 4.5]
-    assert main([str(tmp_path / "nope")]) == 2
+    assert main([f"run={tmp_path / 'nope'}"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: run = ") and "no TensorBoard directory" in err
+    assert len(err.splitlines()) == 1

@@ -435,7 +435,7 @@ def main(argv: list[str]) -> int:
         if row[0].startswith(prefix) and not hidden and row not in rows:
             rows.append(row)
     if not rows:
-        print(f"no config field starts with {prefix!r}", file=sys.stderr)
+        print(f"error: no config field starts with {prefix!r}", file=sys.stderr)
         return 2
     width = [max(len(r[i]) for r in rows) for i in range(4)]
     for r in rows:

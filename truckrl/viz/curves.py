@@ -1,16 +1,13 @@
-"""Learning curves of a training run as a PNG, drawn with OpenCV (no plotting library needed).
+"""Learning curves of a training run as an image, drawn with OpenCV (no plotting library needed).
 
-    python -m truckrl.viz.curves outputs/RUN_DIR --out docs/learning_curve.png
-
-Reads the run's TensorBoard events (``<run_dir>/tb``) and draws, against wall-clock minutes,
+``truckrl tools curves run=outputs/RUN_DIR out=docs/learning_curve.png``
+(:mod:`truckrl.tools.curves`) reads the run's TensorBoard events (``<run_dir>/tb``) and draws, against wall-clock minutes,
 the curriculum difficulty, the success rate with its EMA, and the final position error. The same
 data is printed as a table of the first time each difficulty was reached.
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import cv2
@@ -128,31 +125,3 @@ def render(scalars: dict[str, np.ndarray], width: int = 900, panel_h: int = 220)
         )
         panels.append(img)
     return np.concatenate(panels, axis=0)
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m truckrl.viz.curves", description=__doc__.split("\n")[0]
-    )
-    parser.add_argument("run_dir", help="training run directory (holds tb/)")
-    parser.add_argument(
-        "--out", default=None, help="PNG path (default <run_dir>/learning_curve.png)"
-    )
-    args = parser.parse_args(argv)
-    try:
-        scalars = load_scalars(args.run_dir)
-    except (FileNotFoundError, ValueError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    out = Path(args.out or Path(args.run_dir) / "learning_curve.png")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(out), cv2.cvtColor(render(scalars), cv2.COLOR_RGB2BGR))
-    print("| difficulty | wall minutes | frames |\n|---:|---:|---:|")
-    for m in milestones(scalars):
-        print(f"| {m['difficulty']:g} | {m['minutes']:.1f} | {m['frames']:,} |")
-    print(f"wrote {out}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
