@@ -316,7 +316,7 @@ class Planner:
         plan = self._extras(x, s["params"], span)
         arc = self._arc(s, x)
         if arc_on is not None:  # candidates of knots-only attempts (steer_prior=alternate)
-            arc[:, 2] = torch.where(arc_on, arc[:, 2], 0.0)
+            arc = torch.cat((arc[:, :2], torch.where(arc_on, arc[:, 2], 0.0)[:, None]), -1)
         diff = torch.full((n,), float(difficulty), device=dev)
         score0, worst0 = self._score(s, diff)
         acc = {

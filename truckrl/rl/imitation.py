@@ -1,22 +1,23 @@
-"""Behaviour cloning from planner demonstrations: a start for PPO that already drives every route.
+"""Behaviour cloning from demonstrations: a start for PPO that already drives every route.
 
-Trained from scratch, PPO learns straight roads and left turns but settles on standing still in
-right turns (README, "Learning quality"): its first attempts crash, and with the paper's rewards
-and discount a timeout 200 steps later costs less than a crash now. The planner
-(:mod:`truckrl.planning.planner`) solves those scenes. This module turns its plans into a policy
-start:
+PPO from scratch can settle on standing still where its first attempts crash (README, "Learning
+quality"): with the paper's rewards and discount a timeout later costs less than a crash now.
+Demonstrations of successful episodes give it a start that drives. This module turns them into a
+policy start:
 
-* :func:`demonstrations` replays the successful action sequences of a plan through an eager
-  :class:`~truckrl.env.TruckEnv` started from the same scene states and records what the policy
-  would have seen before each action: ``observation [M, F]``, ``lidar [M, R]`` and the
-  planner's ``action [M, 2]``, for every step up to the end of each episode (``M`` samples in
-  all). A replay that does not end in success is dropped (the count is returned).
+* :func:`demonstrations` replays action sequences (the planner's, :mod:`truckrl.planning`)
+  through an eager :class:`~truckrl.env.TruckEnv` started from the same scene states and records
+  what the policy would have seen before each action: ``observation [M, F]``, ``lidar [M, R]``
+  and the demonstrated ``action [M, 2]``, for every step up to the end of each episode (``M``
+  samples in all). A replay that does not end in success is dropped (the count is returned).
 * :func:`behaviour_clone` fits the actor's mean ("loc") to those actions by mean squared error
   with Adam, shuffled minibatches, a fixed seed; the critic and the log-std are left alone (the
   log-std is then set by the caller).
 
-The planner solves no ``uturn`` scene; there ``demos.source=driver`` records the scripted
-turnaround of :mod:`truckrl.tasks.uturn.expert` instead (closed loop, successful episodes only).
+Who demonstrates (``demos.source``): ``planner``, the CEM planner on any task; ``driver``, the
+task's own scripted demonstrator, the ``demonstrations`` function of its folder's ``expert.py``
+(looked up by task name, :func:`truckrl.planning.experts.scripted_demonstrations`; closed loop,
+successful episodes only).
 
 ``python -m truckrl.tools.imitate`` wraps both and writes a training checkpoint that
 ``python -m truckrl.train resume=<dir>`` continues; :func:`bootstrap` does the whole chain (plan,
@@ -186,20 +187,16 @@ def plan_demos(plan: dict[str, Any]) -> tuple[list[int], list[list[list[float]]]
 
 
 def _driven(env_cfg: EnvConfig, dc: Any) -> tuple[Tensor, TensorDict]:
-    """``dc.episodes`` road starts of seed ``dc.seed`` driven by the scripted turnaround
-    (:func:`truckrl.tasks.uturn.expert.driven_demos`): ``(solved [E], samples [M])``."""
-    from truckrl.planning.planner import held_out_states
-    from truckrl.tasks import MAX_DIFFICULTY
-    from truckrl.tasks.uturn.expert import driven_demos
+    """``dc.episodes`` scenes of seed ``dc.seed`` driven by the task's scripted demonstrator
+    (``expert.demonstrations`` of its folder): ``(solved [E], samples [M])``.
 
-    if env_cfg.task.name != "uturn":
-        raise ValueError(
-            f"demos.source = driver drives task uturn only (env.task.name = {env_cfg.task.name})"
-        )
-    # from the top of the start curriculum every start is the road start, the driver's
-    states = held_out_states(env_cfg, dc.episodes, dc.seed, "cpu", difficulty=MAX_DIFFICULTY)
-    samples, solved = driven_demos(env_cfg, states, dc.difficulty)
-    return solved, samples
+    Raises:
+        ConfigError: the task's folder has no such demonstrator.
+    """
+    from truckrl.planning import scripted_demonstrations
+
+    drive = scripted_demonstrations(env_cfg.task.name)
+    return drive(env_cfg, dc.episodes, dc.seed, dc.difficulty)
 
 
 def bootstrap(
@@ -211,8 +208,8 @@ def bootstrap(
     progress: Any = None,
 ) -> tuple[dict[str, Any], TensorDict]:
     """Plan ``dc.episodes`` scenes of seed ``dc.seed`` (``dc.source`` "planner"; "driver":
-    drive them with the scripted turnaround of :mod:`truckrl.tasks.uturn.expert`), clone the
-    successful episodes into ``ac``'s actor and set its std: a training run's start
+    drive them with the task's scripted demonstrator, its folder's ``expert.demonstrations``),
+    clone the successful episodes into ``ac``'s actor and set its std: a training run's start
     (``train demos.episodes=N``).
 
     Args:
@@ -230,11 +227,11 @@ def bootstrap(
 
     Raises:
         ValueError: no episode succeeded (nothing to clone), or ``source`` "driver" with a task
-            other than ``uturn``.
+            whose expert has no ``demonstrations`` (a ConfigError).
     """
     import time
 
-    from truckrl.planning.planner import PlannerConfig, held_out_states, plan_states
+    from truckrl.planning import PlannerConfig, held_out_states, plan_states
 
     t0 = time.perf_counter()
     if dc.source == "driver":

@@ -1,8 +1,9 @@
 """A scripted three-point turn for task ``uturn``: demonstrations, and a lower bound on solvability.
 
-The CEM planner (:mod:`truckrl.planning.planner`) solves no ``uturn`` scene: its smooth knots do not
-find the forward-reverse-forward sequence (README, "Reversing"). This feedback driver does, on
-most scenes, with one of a few settings per scene:
+The CEM planner (:mod:`truckrl.planning`) does not find the forward-reverse-forward sequence of
+a turnaround with its smooth knots (README, "Reversing"); this feedback driver does, with one of a
+few settings per scene. It is the task's expert (the contract is in :mod:`truckrl.planning`):
+:func:`demonstrations` is what ``demos.source=driver`` clones.
 
 * :class:`TurnaroundDriver` computes set-points (speed [m/s], steering angle [rad]) from the
   state, batched, in the scene's local frame (right branches mirrored to left).
@@ -12,7 +13,7 @@ most scenes, with one of a few settings per scene:
   would have seen before each action, keeping successful episodes: the same samples as
   :func:`truckrl.rl.imitation.demonstrations`.
 * :func:`driven_demos` tries :data:`DEMO_SETTINGS` on every scene and keeps, per scene, the
-  first setting that succeeds.
+  first setting that succeeds; :func:`demonstrations` does so on held-out road starts.
 """
 
 from __future__ import annotations
@@ -28,9 +29,10 @@ from tensordict import TensorDict
 from torch import Tensor
 
 from truckrl.env import LIDAR_KEY, OBS_KEY, TruckEnv
+from truckrl.planning.scenes import held_out_states
 from truckrl.sim.control import ControlConfig
 from truckrl.sim.geometry import wrap_angle
-from truckrl.tasks import EnvConfig
+from truckrl.tasks import MAX_DIFFICULTY, EnvConfig
 
 #: The full grid of driver settings (lane_y, arc_radius, pass_margin, exit_look, exit_shift,
 #: shift_until) [m], 288 in all.
@@ -45,10 +47,9 @@ GRID: tuple[tuple[float, ...], ...] = tuple(
     )
 )
 
-#: The settings :func:`driven_demos` tries by default: a greedy cover of :data:`GRID` on 60
-#: default scenes (seed 4242, which neither the demonstrations nor any evaluation use). The
-#: first five solve 29 of the 60 scenes at difficulty 4 (the whole grid: 29), the last four 44
-#: at difficulty 2 (the grid: 44); all 288 took 109 s per difficulty there, these 9 take 1/32.
+#: The settings :func:`driven_demos` tries by default: a greedy cover of :data:`GRID` on a set of
+#: default scenes of seed 4242 (which neither the demonstrations nor any evaluation use): every
+#: scene there that some grid row solves, at difficulty 4 or 2, one of these rows solves.
 DEMO_SETTINGS: tuple[tuple[float, ...], ...] = tuple(
     GRID[i] for i in (265, 251, 161, 217, 275, 266, 264, 276, 174)
 )
@@ -64,13 +65,11 @@ class TurnaroundDriver:
     articulation is open-loop unstable in reverse, so this loop is what keeps the trailer in
     hand: ``phi_dot = |v| (tan(delta) / L_t (1 + a / L_ka cos phi) + sin(phi) / L_ka)``). Phase 2,
     forward out: pure pursuit to a point ``exit_look`` ahead on the goal lane (``exit_shift``
-    nearer the road's centre until ``shift_until`` before the goal; 25 m instead of 15 m
-    leaves the trailer time to straighten: on 60 default scenes at difficulty 4 the grid's
-    settings with 25 m solve 29, the best one 22; those with 15 m solve 10). Phase 3: stop once the rear axle is
-    level with the goal.
+    nearer the road's centre until ``shift_until`` before the goal; the longer distance leaves
+    the trailer time to straighten). Phase 3: stop once the rear axle is level with the goal.
 
-    Why feedback and not an open-loop action list: the reverse leg amplifies any deviation, so a
-    successful run's actions averaged over 0.3 s pieces and replayed open loop collide (measured).
+    Why feedback and not an open-loop action list: the reverse leg amplifies any deviation, so
+    a successful run's actions, smoothed and replayed open loop, collide.
     Geometry comes from the scene's metadata (``state["route"]``), not the generator's internals.
 
     Args:
@@ -316,3 +315,22 @@ def driven_demos(
     if not again.all():  # determinism is what the second pass relies on
         raise RuntimeError(f"{int((~again).sum())} driven demonstrations did not repeat")
     return samples, solved
+
+
+def demonstrations(
+    env_cfg: EnvConfig, episodes: int, seed: int, difficulty: float
+) -> tuple[Tensor, TensorDict]:
+    """The expert's demonstrations (``demos.source=driver``): :func:`driven_demos` on the
+    ``episodes`` held-out road starts of ``seed``.
+
+    The starts are drawn at the top of the start curriculum (``MAX_DIFFICULTY``), where every
+    start is the road start the driver turns round from; ``difficulty`` is the tolerance level a
+    demonstration must meet.
+
+    Returns:
+        ``(solved [E] bool, samples [M])`` ("observation", "lidar", "action" of the solved
+        scenes).
+    """
+    states = held_out_states(env_cfg, episodes, seed, "cpu", difficulty=MAX_DIFFICULTY)
+    samples, solved = driven_demos(env_cfg, states, difficulty)
+    return solved, samples
