@@ -154,60 +154,6 @@ def test_partial_reset_keeps_other_envs_bit_for_bit():
     assert not torch.equal(before["goal"][reset], after["goal"][reset])
 
 
-# The env's own step_and_maybe_reset writes the restarted rows straight into the next root;
-# TorchRL's generic path (EnvBase._step_and_maybe_reset: maybe_reset -> reset -> _reset ->
-# where-merge with zero padding) is the independent answer. The intersection task keeps drawn
-# episodes as they are (the pool holds their first observation); the dock task moves the start
-# by difficulty (its start curriculum), so its observation is computed at the reset.
-# TorchRL zeroes the other root entries (the action, a policy's outputs) on the restarted rows
-# when some trucks restart, and keeps them when all do; both cases are covered. Random dock
-# trucks rarely crash: they all time out together.
-@pytest.mark.parametrize(
-    "cfg,difficulty,case",
-    [
-        ({"max_steps": 6}, 0.0, "some"),
-        ({"max_steps": 3}, 0.0, "all"),  # every truck times out on the same step
-        ({"task": {"name": "dock"}, "max_steps": 12}, 2.0, "all"),
-    ],
-    ids=["intersection", "all-at-once", "dock"],
-)
-def test_step_and_maybe_reset_equals_torchrl_generic_path(cfg, difficulty, case):
-    from torchrl.envs import EnvBase
-
-    n = 24
-    fast, generic = make(n, seed=5, **cfg), make(n, seed=5, **cfg)
-    fast.set_difficulty(difficulty)
-    generic.set_difficulty(difficulty)
-    td_f, td_g = fast.reset(), generic.reset()
-    gen = torch.Generator().manual_seed(3)
-    seen = {"some": 0, "all": 0}
-    for step in range(30):
-        action = torch.rand(n, 2, generator=gen) * 2.4 - 1.2
-        action[step % n] = float("nan")  # a flagged row, zeroed at a restart like the others
-        extra = torch.rand(n, 3, generator=gen) + 1  # something a policy left at the root
-        for td in (td_f, td_g):
-            td.set("action", action)
-            td.set(("policy", "hidden"), extra.clone())
-        out_f, td_f = fast.step_and_maybe_reset(td_f)
-        out_g, td_g = EnvBase._step_and_maybe_reset(generic, td_g)
-        keys_f = set(td_f.keys(include_nested=True, leaves_only=True))
-        assert keys_f == set(td_g.keys(include_nested=True, leaves_only=True))
-        assert "_reset" not in keys_f
-        for key in out_g.keys(include_nested=True, leaves_only=True):  # exactly, NaN actions too
-            torch.testing.assert_close(out_f[key], out_g[key], rtol=0, atol=0, equal_nan=True)
-        for key in keys_f:
-            torch.testing.assert_close(td_f[key], td_g[key], rtol=0, atol=0, equal_nan=True)
-        ended = out_f["next", "done"].squeeze(-1)
-        if ended.any():
-            seen["all" if ended.all() else "some"] += 1
-        # hand-written expectations of the merge, beside the comparison with TorchRL's path
-        kept = extra if ended.all() else torch.where(ended[:, None], 0.0, extra)
-        assert torch.equal(td_f["policy", "hidden"], kept)
-        assert not td_f["done"].any() and not td_f["collision"].any()
-        assert torch.all(td_f["step_count"][ended] == 0)
-    assert seen[case] >= 1
-
-
 def test_partial_reset_observation_is_the_restarted_state_observed():
     # Independent answer: Task.observe run on the env's state rows after the reset (the pool's
     # precomputed first observation must be exactly what observing the new episode gives).
