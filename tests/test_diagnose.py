@@ -1,4 +1,4 @@
-"""``python -m truckrl.tools.diagnose`` and its parts: which body touched what, the trailer's depth into
+"""``truckrl tools diagnose`` and its parts: which body touched what, the trailer's depth into
 the branch, and the per-episode record of a scripted drive whose outcome is known in advance."""
 
 import math
@@ -94,11 +94,28 @@ def test_a_straight_drive_is_recorded_as_it_must_end():
     assert all(set(r["touched"]) == {"tractor: dead-end wall"} for r in crash)
 
 
+def _code(argv: list[str]) -> int:
+    try:
+        return main(argv)
+    except SystemExit as e:  # a bad KEY=VALUE exits at parsing
+        return e.code
+
+
 def test_cli_refuses_bad_input_in_one_line(capsys):
-    assert main(["pretrained", "--episodes", "0"]) == 2
-    assert "--episodes = 0" in capsys.readouterr().err
-    assert main(["pretrained", "--episodes", "2"]) == 2  # the shipped intersection policy
+    assert _code(["checkpoint=pretrained", "episodes=0"]) == 2
+    assert "episodes = 0" in capsys.readouterr().err
+    assert _code(["checkpoint=pretrained", "episodes=2"]) == 2  # the shipped intersection policy
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "task 'intersection'" in err and "'uturn'" in err
-    assert main(["no/such/checkpoint.pt"]) == 2
+    assert err.count("\n") == 1 and "task 'intersection' has no diagnosis" in err
+    assert _code(["checkpoint=no/such/checkpoint.pt"]) == 2
     assert capsys.readouterr().err.startswith("error: ")
+    assert _code(["episodes=2"]) == 2
+    assert "checkpoint is required" in capsys.readouterr().err
+    assert _code(["pretrained"]) == 2  # the old positional style
+    assert "KEY=VALUE" in capsys.readouterr().err
+
+
+def test_cli_finds_the_diagnosis_of_the_checkpoints_task(capsys, tmp_path):
+    out = tmp_path / "rows.json"
+    assert main(["checkpoint=pretrained:uturn", "episodes=2", f"out={out}"]) == 0
+    assert "pretrained" in capsys.readouterr().out and out.is_file()

@@ -1,9 +1,10 @@
-"""``python -m truckrl.tools.paths`` and its parts: recorded paths, the scene filter, the drawing."""
+"""``truckrl tools paths`` and its parts: recorded paths, the scene filter, the drawing."""
 
 import numpy as np
 import pytest
 import torch
 
+from truckrl.config.fields import ConfigError
 from truckrl.evaluation.rollout import evaluate_policy
 from truckrl.planning.planner import held_out_states
 from truckrl.rl.policy import load_policy
@@ -26,16 +27,25 @@ def test_recorded_paths_start_at_the_start_and_stop_with_the_episode(tiny_checkp
         assert (path[i, n:] == path[i, n]).all()
 
 
-def test_select_filters_route_and_turn_bin():
+def test_select_keeps_the_episodes_in_every_named_bin_of_the_task():
+    pytest.importorskip("truckrl.tasks.intersection")
     results = {
         "success": torch.tensor([True, False, False, True]),
         "route": torch.tensor([3, 3, 2, 3]),
         "turn_angle": torch.tensor([-2.0, -1.0, 2.0, -2.5]),  # rad: 114.6, 57.3, 114.6, 143.2 deg
+        "trailer_length": torch.full((4,), 12.0),
+        "crossing_angle": torch.full((4,), 1.5),
+        "start_road_width": torch.full((4,), 14.0),
+        "goal_road_width": torch.full((4,), 14.0),
+        "goal_distance": torch.full((4,), 50.0),
     }
-    assert select(results, "right", None).tolist() == [True, True, False, True]
-    assert select(results, "right", (110.0, 180.0)).tolist() == [True, False, False, True]
-    assert select(results, None, (100.0, 120.0)).tolist() == [True, False, True, False]
-    assert select(results, None, None).all()
+    task = "intersection"
+    assert select(results, task, ("route right",)).tolist() == [True, True, False, True]
+    both = ("route right", "turn [deg] right 110-180")
+    assert select(results, task, both).tolist() == [True, False, False, True]
+    assert select(results, task, ()).all()
+    with pytest.raises(ConfigError, match="category = 'route diagonal': task 'intersection' has"):
+        select(results, task, ("route diagonal",))
 
 
 def test_draw_path_puts_the_trace_where_the_truck_went():
@@ -63,8 +73,8 @@ def test_grid_lays_rows_and_columns_with_gaps():
 def test_cli_draws_one_row_per_checkpoint_in_the_same_scenes(tiny_checkpoint, tmp_path, capsys):
     run, _, _ = tiny_checkpoint
     out = tmp_path / "p.png"
-    args = [str(run), str(run), "--episodes", "6", "--count", "2", "--outcome", "any"]
-    assert main([*args, "--labels", "a", "b", "--out", str(out), "--threads", "1"]) == 0
+    args = [f"checkpoints=[{run},{run}]", "episodes=6", "count=2", "outcome=any"]
+    assert main([*args, "labels=[a,b]", f"out={out}", "threads=1"]) == 0
     import cv2
 
     img = cv2.imread(str(out))
@@ -79,16 +89,21 @@ def test_cli_draws_one_row_per_checkpoint_in_the_same_scenes(tiny_checkpoint, tm
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--route", "diagonal"], "--route = 'diagonal' must be one of"),
-        (["--turn", "120", "90"], "--turn = 120 90 must be 0 <= LO < HI <= 180"),
-        (["--labels", "a", "b"], "--labels: 2 given for 1 checkpoints"),
-        (["--count", "0"], "--count = 0 must be in [1, 64]"),
-        (["--difficulty", "31"], "--difficulty = 31.0 must be in [0, "),
+        (["category=route diagonal"], "category = 'route diagonal': task "),
+        (["labels=[a,b]"], "labels: 2 given for 1 checkpoints"),
+        (["count=0"], "count = 0 is outside the allowed range [1, 64]"),
+        (["difficulty=31"], "difficulty = 31 is outside the allowed range [0.0, 30.0]"),
+        (["outcome=won"], "outcome = 'won' is not one of"),
+        (["--route", "right"], "'--route': arguments are KEY=VALUE"),
     ],
 )
 def test_bad_options_are_one_line(tiny_checkpoint, tmp_path, capsys, extra, message):
     run, _, _ = tiny_checkpoint
-    assert main([str(run), "--out", str(tmp_path / "p.png"), *extra]) == 2
+    try:
+        code = main([f"checkpoints={run}", f"out={tmp_path / 'p.png'}", "episodes=4", *extra])
+    except SystemExit as e:  # bad KEY=VALUE input exits while parsing
+        code = e.code
+    assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and message in err[0]
+    assert len(err) == 1 and message in err[0], err
     assert not (tmp_path / "p.png").exists()

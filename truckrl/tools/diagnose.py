@@ -1,67 +1,93 @@
-"""``python -m truckrl.tools.diagnose``: where a ``uturn`` policy fails.
+"""``truckrl tools diagnose``: where a policy fails, for a task whose folder has a diagnosis.
 
-    python -m truckrl.tools.diagnose outputs/uturn3/checkpoints/last.pt --difficulty 4 --episodes 300
+    truckrl tools diagnose checkpoint=outputs/RUN/checkpoints/last.pt difficulty=4 episodes=300
 
-Runs the checkpoint's mean action on the scenes that ``python -m truckrl.evaluate
-episodes=N seed=S`` scores and prints, per branch side and outcome, how many episodes pulled
-past the branch, turned round, how deep the trailer got into the branch, and what the collided
-trucks touched (:mod:`truckrl.tasks.uturn.diagnosis`). ``--output FILE`` also writes the rows as JSON.
-Bad options print one line and exit with code 2.
+Runs the checkpoint's mean action on the scenes that ``truckrl eval episodes=N seed=S`` scores
+and prints the rows of ``truckrl/tasks/<task>/diagnosis.py`` (the checkpoint's task): its
+``diagnose`` (or ``diagnose_<task>``), ``summarize_diagnosis`` and ``format_diagnosis``.
+``out=FILE`` also writes the rows as JSON. A task without a diagnosis, and any other bad input,
+prints one line and exits with code 2.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
-from pathlib import Path
+from dataclasses import dataclass
 
-from truckrl.cli import OneLineArgParser, check_scene_options, run_or_fail
+from truckrl.config.fields import ConfigError, param, validate
+from truckrl.tasks import MAX_DIFFICULTY
+
+PROG = "truckrl tools diagnose"
+ABOUT = "Where a policy fails: the diagnosis of its task (truckrl/tasks/<task>/diagnosis.py)."
 
 
-def parser() -> argparse.ArgumentParser:
-    p = OneLineArgParser(
-        prog="python -m truckrl.tools.diagnose", description=__doc__.split("\n")[0]
+@dataclass
+class DiagnoseConfig:
+    """Which policy on which scenes."""
+
+    checkpoint: str | None = param(None, doc="checkpoint file, run dir or pretrained[:task]")
+    difficulty: float | None = param(
+        None, lo=0.0, hi=MAX_DIFFICULTY, doc="null: the checkpoint's curriculum difficulty"
     )
-    p.add_argument("checkpoint", help="a uturn checkpoint (file or run dir, or pretrained:NAME)")
-    p.add_argument("--difficulty", type=float, help="default: the checkpoint's")
-    p.add_argument("--episodes", type=int, default=300, help="held-out scenes (default 300)")
-    p.add_argument("--seed", type=int, default=12345, help="scene seed (default 12345)")
-    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
-    p.add_argument("--output", help="JSON file for the rows")
-    return p
+    episodes: int = param(300, lo=1, hi=100_000, doc="held-out scenes")
+    seed: int = param(12345, lo=0, hi=2**62, doc="scene seed (evaluate's by default)")
+    threads: int = param(1, lo=1, hi=1024, doc="torch CPU threads")
+    out: str | None = param(None, doc="JSON file for the rows; null: none")
+
+    def __post_init__(self) -> None:
+        validate(self)
+        if not self.checkpoint:
+            raise ConfigError("checkpoint is required: checkpoint=<file, run dir or pretrained>")
 
 
-def run(args: argparse.Namespace) -> list[dict]:
-    from truckrl.config.fields import ConfigError
+def diagnosis_module(task: str, checkpoint: str):
+    """``truckrl.tasks.<task>.diagnosis`` (a dotted task: ``<task>.diagnosis``).
 
-    check_scene_options(args)
+    Raises:
+        ConfigError: the task has no diagnosis module.
+    """
+    import importlib
+
+    name = f"{task}.diagnosis" if "." in task else f"truckrl.tasks.{task}.diagnosis"
+    try:
+        return importlib.import_module(name)
+    except ModuleNotFoundError as e:
+        if e.name is None or not name.startswith(e.name):
+            raise  # the module exists but something it imports is missing
+        raise ConfigError(
+            f"checkpoint = {checkpoint!r}: its task {task!r} has no diagnosis ({name})"
+        ) from None
+
+
+def run(cfg: DiagnoseConfig) -> list[dict]:
+    import json
+    from pathlib import Path
 
     import torch
 
     from truckrl.rl.policy import load_policy
-    from truckrl.tasks.uturn.diagnosis import diagnose_uturn, format_diagnosis, summarize_diagnosis
 
-    torch.set_num_threads(args.threads)
-    policy = load_policy(args.checkpoint)
-    if policy.env_config.task.name != "uturn":
-        raise ConfigError(
-            f"checkpoint {args.checkpoint}: task {policy.env_config.task.name!r}; the diagnosis "
-            "is for task 'uturn'"
-        )
-    difficulty = policy.difficulty if args.difficulty is None else args.difficulty
-    d = diagnose_uturn(policy.actor, policy.env_config, difficulty, args.episodes, args.seed)
-    rows = summarize_diagnosis(d)
-    print(f"{policy.path}: {args.episodes} scenes (seed {args.seed}) at difficulty {difficulty:g}")
-    print(format_diagnosis(rows))
-    if args.output:
-        Path(args.output).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.output).write_text(json.dumps(rows, indent=1))
+    torch.set_num_threads(cfg.threads)
+    policy = load_policy(cfg.checkpoint)
+    task = policy.env_config.task.name
+    module = diagnosis_module(task, cfg.checkpoint)
+    diagnose = getattr(module, "diagnose", None) or getattr(module, f"diagnose_{task}")
+    difficulty = policy.difficulty if cfg.difficulty is None else cfg.difficulty
+    d = diagnose(policy.actor, policy.env_config, difficulty, cfg.episodes, cfg.seed)
+    rows = module.summarize_diagnosis(d)
+    print(f"{policy.path}: {cfg.episodes} scenes (seed {cfg.seed}) at difficulty {difficulty:g}")
+    print(module.format_diagnosis(rows))
+    if cfg.out:
+        Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(cfg.out).write_text(json.dumps(rows, indent=1))
     return rows
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run_or_fail(run, parser().parse_args(argv))
+    from truckrl.cli import key_value_config, run_or_fail
+
+    cfg = key_value_config(DiagnoseConfig, sys.argv[1:] if argv is None else argv, PROG, ABOUT)
+    return run_or_fail(run, cfg)
 
 
 if __name__ == "__main__":

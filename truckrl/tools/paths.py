@@ -1,69 +1,64 @@
-"""``python -m truckrl.tools.paths``: draw where policies drive, side by side in the same scenes.
+"""``truckrl tools paths``: draw where policies drive, side by side in the same scenes.
 
-    python -m truckrl.tools.paths outputs/A outputs/B --route right --turn 110 180 --out paths.png
+    truckrl tools paths checkpoints=[outputs/A,outputs/B] out=paths.png category="[route right]"
 
-Runs each checkpoint's mean action on the scenes that ``python -m truckrl.evaluate
-episodes=N seed=S`` scores (the same scenes for every checkpoint), picks ``--count`` of them
-(those in ``--route`` and ``--turn`` that the first checkpoint ends with ``--outcome``), and
-writes a PNG: one row per checkpoint, one column per scene, each the scene with the rear-axle
-trace and the tractor and trailer outlines every ``--every`` steps (:mod:`truckrl.viz.paths`).
-It prints each checkpoint's success on the chosen category and the scene indices drawn. Bad
-options print one line and exit with code 2.
+Runs each checkpoint's mean action on the scenes that ``truckrl eval episodes=N seed=S`` scores
+(the same scenes for every checkpoint), picks ``count`` of them (those in every ``category`` that
+the first checkpoint ends with ``outcome``), and writes a PNG: one row per checkpoint, one column
+per scene, each the scene with the rear-axle trace and the tractor and trailer outlines every
+``every`` steps (:mod:`truckrl.viz.paths`). A category is a row of the table ``truckrl eval``
+prints, ``DIMENSION BIN`` (``route right``, ``turn [deg] right 110-180``): the task's bins
+(:meth:`truckrl.tasks.Task.category_bins`). It prints each checkpoint's success on the chosen
+scenes and the scene indices drawn. Bad input prints one line and exits with code 2.
 """
 
 from __future__ import annotations
 
-import argparse
-import math
 import sys
-from pathlib import Path
+from dataclasses import dataclass
 
-from truckrl.cli import OneLineArgParser, check_scene_options, run_or_fail
+from truckrl.config.fields import ConfigError, param, validate
+from truckrl.tasks import MAX_DIFFICULTY
 
+PROG = "truckrl tools paths"
+ABOUT = "Draw where policies drive, side by side in the same held-out scenes, to a PNG."
 OUTCOME_CHOICES = ("failed", "solved", "any")
 
 
-def parser() -> argparse.ArgumentParser:
-    p = OneLineArgParser(prog="python -m truckrl.tools.paths", description=__doc__.split("\n")[0])
-    p.add_argument("checkpoints", nargs="+", help="checkpoints (file, run dir or pretrained)")
-    p.add_argument("--out", required=True, help="PNG file to write")
-    p.add_argument("--episodes", type=int, default=1000, help="scenes (default 1000)")
-    p.add_argument("--seed", type=int, default=12345, help="scene seed (default 12345)")
-    p.add_argument("--difficulty", type=float, help="default: the first checkpoint's")
-    p.add_argument("--route", help="intersection route: 'straight road', 'straight on', "
-                   "left or right (default: any)")  # fmt: skip
-    p.add_argument("--turn", type=float, nargs=2, metavar=("LO", "HI"),
-                   help="turn angle bin [LO, HI) in degrees (default: any)")  # fmt: skip
-    p.add_argument("--outcome", default="failed", choices=OUTCOME_CHOICES,
-                   help="what the first checkpoint did in the drawn scenes (default failed)")  # fmt: skip
-    p.add_argument("--count", type=int, default=4, help="scenes drawn (default 4)")
-    p.add_argument("--every", type=int, default=12, help="outlines every N steps (default 12)")
-    p.add_argument("--labels", nargs="+", help="one row label per checkpoint")
-    p.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
-    return p
+@dataclass
+class PathsConfig:
+    """Which policies, which scenes, and where to draw them."""
 
+    checkpoints: tuple[str, ...] = param((), min_len=0, doc="checkpoints (file, run dir or "
+                                         "pretrained[:task]), one row each; required")  # fmt: skip
+    out: str | None = param(None, doc="PNG file to write; required")
+    episodes: int = param(1000, lo=1, hi=100_000, doc="held-out scenes")
+    seed: int = param(12345, lo=0, hi=2**62, doc="scene seed (evaluate's by default)")
+    difficulty: float | None = param(
+        None, lo=0.0, hi=MAX_DIFFICULTY, doc="null: the first checkpoint's"
+    )
+    category: tuple[str, ...] = param(
+        (), min_len=0, doc="scene categories 'DIMENSION BIN' as truckrl eval prints them; all"
+    )
+    outcome: str = param("failed", choices=OUTCOME_CHOICES, doc="by the first checkpoint")
+    count: int = param(4, lo=1, hi=64, doc="scenes drawn")
+    every: int = param(12, lo=1, hi=100_000, unit="steps", doc="between drawn outlines")
+    labels: tuple[str, ...] | None = param(None, doc="one row label per checkpoint")
+    threads: int = param(2, lo=1, hi=1024, doc="torch CPU threads")
 
-def _check(args: argparse.Namespace) -> None:
-    from truckrl.config.fields import ConfigError
-    from truckrl.tasks.intersection.scene import ROUTE_NAMES
-
-    check_scene_options(args)
-    if not 1 <= args.count <= 64:
-        raise ConfigError(f"--count = {args.count} must be in [1, 64]")
-    if args.every < 1:
-        raise ConfigError(f"--every = {args.every} must be >= 1")
-    if args.route is not None and args.route not in ROUTE_NAMES:
-        allowed = ", ".join(repr(r) for r in ROUTE_NAMES)
-        raise ConfigError(f"--route = {args.route!r} must be one of {allowed}")
-    if args.turn is not None and not 0 <= args.turn[0] < args.turn[1] <= 180:
-        raise ConfigError(f"--turn = {args.turn[0]:g} {args.turn[1]:g} must be 0 <= LO < HI <= 180")
-    if args.labels is not None and len(args.labels) != len(args.checkpoints):
-        raise ConfigError(
-            f"--labels: {len(args.labels)} given for {len(args.checkpoints)} checkpoints"
-        )
-    out = Path(args.out)
-    if out.suffix.lower() != ".png":
-        raise ConfigError(f"--out = {args.out}: must end in .png")
+    def __post_init__(self) -> None:
+        for name in ("checkpoints", "category", "labels"):  # one value for a list of one
+            if isinstance(getattr(self, name), str):
+                setattr(self, name, (getattr(self, name),))
+        validate(self)
+        if not self.checkpoints:
+            raise ConfigError("checkpoints is required: checkpoints=[RUN_DIR,...]")
+        if not self.out or not self.out.lower().endswith(".png"):
+            raise ConfigError(f"out = {self.out!r}: a PNG file to write (out=paths.png)")
+        if self.labels is not None and len(self.labels) != len(self.checkpoints):
+            raise ConfigError(
+                f"labels: {len(self.labels)} given for {len(self.checkpoints)} checkpoints"
+            )
 
 
 def outcome_names(results: dict, episodes: list[int]) -> list[str]:
@@ -75,96 +70,106 @@ def outcome_names(results: dict, episodes: list[int]) -> list[str]:
     ]
 
 
-def select(results: dict, route: str | None, turn: tuple[float, float] | None):
-    """Bool ``[E]``: the episodes in ``route`` and the turn-angle bin ``[lo, hi)`` [deg]."""
+def select(results: dict, task: str, categories: tuple[str, ...]):
+    """Bool ``[E]``: the episodes in every one of ``categories`` (``"DIMENSION BIN"``) of the
+    task's bins (:meth:`truckrl.tasks.Task.category_bins`).
+
+    Raises:
+        ConfigError: a category the task does not have (the message lists those it has).
+    """
     import torch
 
-    from truckrl.config.fields import ConfigError
+    from truckrl.evaluation.categories import task_bins
 
     keep = torch.ones_like(results["success"])
-    if route is not None or turn is not None:
-        if "route" not in results:
-            raise ConfigError("--route / --turn: this task records no routes (intersection does)")
-    if route is not None:
-        from truckrl.tasks.intersection.scene import ROUTE_NAMES
-
-        keep &= results["route"] == ROUTE_NAMES.index(route)
-    if turn is not None:
-        deg = results["turn_angle"].abs() * (180.0 / math.pi)
-        keep &= (deg >= turn[0]) & (deg < turn[1])
+    if not categories:
+        return keep
+    bins = task_bins(task, results) or {}
+    named = {f"{dim} {b}": mask for dim, group in bins.items() for b, mask in group.items()}
+    for c in categories:
+        if c not in named:
+            known = ", ".join(repr(n) for n in named) or "none"
+            raise ConfigError(f"category = {c!r}: task {task!r} has the categories {known}")
+        keep &= named[c].to(keep.device)
     return keep
 
 
-def run(args: argparse.Namespace) -> dict:
-    _check(args)
-    import cv2
+def run(cfg: PathsConfig) -> dict:
     import torch
 
-    from truckrl.config.fields import ConfigError
     from truckrl.evaluation.rollout import evaluate_policy
     from truckrl.planning.planner import held_out_states
     from truckrl.rl.policy import load_policy
-    from truckrl.viz.paths import draw_path, grid
 
-    torch.set_num_threads(args.threads)
-    policies = [load_policy(c) for c in args.checkpoints]
-    difficulty = policies[0].difficulty if args.difficulty is None else args.difficulty
+    torch.set_num_threads(cfg.threads)
+    policies = [load_policy(c) for c in cfg.checkpoints]
+    difficulty = policies[0].difficulty if cfg.difficulty is None else cfg.difficulty
     starts, runs = [], []
     for pol in policies:
-        starts.append(held_out_states(pol.env_config, args.episodes, args.seed, "cpu", difficulty))
+        starts.append(held_out_states(pol.env_config, cfg.episodes, cfg.seed, "cpu", difficulty))
         res, _, _ = evaluate_policy(
-            pol.actor, pol.env_config, difficulty, args.episodes, args.seed, record_paths=True
+            pol.actor, pol.env_config, difficulty, cfg.episodes, cfg.seed, record_paths=True
         )
         runs.append(res)
-    for c, s in zip(args.checkpoints[1:], starts[1:], strict=True):
+    for c, s in zip(cfg.checkpoints[1:], starts[1:], strict=True):
         if not torch.equal(s["goal"], starts[0]["goal"]) or not torch.equal(
             s["segments"], starts[0]["segments"]
         ):
             raise ConfigError(
-                f"{c}: its scenes for seed {args.seed} differ from {args.checkpoints[0]}'s "
+                f"{c}: its scenes for seed {cfg.seed} differ from {cfg.checkpoints[0]}'s "
                 "(their scene or vehicle configs differ)"
             )
-    chosen = select(runs[0], args.route, args.turn)
+    tasks = [p.env_config.task.name for p in policies]
+    chosen = select(runs[0], tasks[0], cfg.category)
     n = int(chosen.sum())
-    if args.outcome != "any":
-        chosen &= runs[0]["success"] if args.outcome == "solved" else ~runs[0]["success"]
-    scenes = torch.nonzero(chosen).squeeze(-1)[: args.count].tolist()
-    what = " ".join(
-        x
-        for x in (args.route, f"turn {args.turn[0]:g}-{args.turn[1]:g} deg" if args.turn else "")
-        if x
-    )
-    print(f"{n} of {args.episodes} scenes (seed {args.seed}, difficulty {difficulty:g}) "
-          f"{what or 'in all'}:")  # fmt: skip
-    labels = args.labels or [str(p.path) for p in policies]
-    for label, res in zip(labels, runs, strict=True):
-        in_cat = select(res, args.route, args.turn)
+    if cfg.outcome != "any":
+        chosen &= runs[0]["success"] if cfg.outcome == "solved" else ~runs[0]["success"]
+    scenes = torch.nonzero(chosen).squeeze(-1)[: cfg.count].tolist()
+    what = ", ".join(cfg.category) or "in all"
+    print(f"{n} of {cfg.episodes} scenes (seed {cfg.seed}, difficulty {difficulty:g}) {what}:")
+    labels = cfg.labels or [str(p.path) for p in policies]
+    for label, res, task in zip(labels, runs, tasks, strict=True):
+        in_cat = select(res, task, cfg.category)
         rate = res["success"][in_cat].float().mean().item() if n else float("nan")
         print(f"  {label}: success {100 * rate:.1f} %")
     if not scenes:
         raise ConfigError(
-            f"no scene to draw: none of the {n} is {args.outcome} by {args.checkpoints[0]}"
+            f"no scene to draw: none of the {n} is {cfg.outcome} by {cfg.checkpoints[0]}"
         )
-    print(f"drawn: scenes {scenes} ({args.outcome} by the first)")
+    print(f"drawn: scenes {scenes} ({cfg.outcome} by the first)")
+    draw(cfg, labels, runs, starts, scenes)
+    return {"scenes": scenes, "count_in_category": n}
+
+
+def draw(cfg: PathsConfig, labels: list[str], runs: list, starts: list, scenes: list[int]):
+    """Write the grid of ``scenes`` (columns) by checkpoints (rows) to ``cfg.out``."""
+    from pathlib import Path
+
+    import cv2
+
+    from truckrl.viz.paths import draw_path, grid
+
     rows = []
     for label, res, start in zip(labels, runs, starts, strict=True):
         names = outcome_names(res, scenes)
         rows.append(
             [
-                draw_path(start[i], res["path"][i], label=f"{label} #{i}: {name}", every=args.every)
+                draw_path(start[i], res["path"][i], label=f"{label} #{i}: {name}", every=cfg.every)
                 for i, name in zip(scenes, names, strict=True)
             ]
         )
-    out = Path(args.out)
+    out = Path(cfg.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(out), grid(rows)[:, :, ::-1]):
-        raise ConfigError(f"--out = {out}: could not be written")
+        raise ConfigError(f"out = {cfg.out!r}: could not be written")
     print(f"wrote {out}")
-    return {"scenes": scenes, "count_in_category": n}
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run_or_fail(run, parser().parse_args(argv))
+    from truckrl.cli import key_value_config, run_or_fail
+
+    cfg = key_value_config(PathsConfig, sys.argv[1:] if argv is None else argv, PROG, ABOUT)
+    return run_or_fail(run, cfg)
 
 
 if __name__ == "__main__":
