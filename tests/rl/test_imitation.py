@@ -14,7 +14,7 @@ from tests.rl.test_planner import ENV, FAST, straight_scene
 from truckrl import imitate as imitate_cli
 from truckrl import plan as plan_cli
 from truckrl.env import TruckEnv
-from truckrl.planning.planner import plan_states
+from truckrl.planning import plan_states
 from truckrl.rl.imitation import (
     SAMPLES_NAME,
     behaviour_clone,
@@ -156,7 +156,7 @@ def test_samples_file_round_trips_and_a_bad_one_is_one_line(tmp_path):
 def test_bootstrap_plans_on_demos_device_else_on_the_runs(monkeypatch):
     """``demos.device`` moves the planner (``cpu``: a GPU run planning on the host's cores);
     unset, it plans where the run is."""
-    import truckrl.planning.planner as planner
+    import truckrl.planning as planner
     from truckrl.config.schemas import DemosConfig
 
     seen = []

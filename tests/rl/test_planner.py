@@ -13,7 +13,7 @@ from tensordict.nn import TensorDictModule
 from tests.conftest import run_cli
 from truckrl import plan as plan_cli
 from truckrl.evaluation.rollout import evaluate_policy
-from truckrl.planning.planner import (
+from truckrl.planning import (
     Planner,
     PlannerConfig,
     knot_matrix,
@@ -104,6 +104,20 @@ def test_bad_planner_config_is_rejected():
         PlannerConfig(samples=1)
     with pytest.raises(ConfigError, match="steer_axis"):
         PlannerConfig(steer_axis="space")
+    with pytest.raises(ConfigError, match="pursuit"):
+        PlannerConfig(pursuit="trailer")  # the fixed-weight laws are gone: blend plans the weight
+
+
+def test_pursuit_none_leaves_the_knots_to_steer():
+    # switch distance inf: the pursuit never takes over; the straight scene is still solved
+    planner = Planner(ENV, {**FAST, "pursuit": "none"})
+    x = torch.zeros(3, planner.config.num_params)
+    params = {"max_speed": torch.full((3,), 8.0)}
+    assert torch.isinf(planner._extras(x, params, torch.full((3,), 50.0))[:, 0]).all()
+    blend = Planner(ENV, FAST)._extras(x, params, torch.full((3,), 50.0))
+    assert torch.equal(blend[:, 0], torch.full((3,), 25.0))  # halfway: x = 0 maps to 0.5
+    res, _, _ = plan_states(ENV, straight_scene(), 2.0, {**FAST, "pursuit": "none"})
+    assert bool(res["success"][0])
 
 
 def _arc_prior(start, goal, last):
@@ -213,7 +227,7 @@ def _backed_up(env: EnvConfig, res) -> torch.Tensor:
     """Replay the reported plans; per scene the lowest speed [m/s] and the final displacement
     along the start heading [m] (negative = behind the start)."""
     from truckrl.env import TruckEnv
-    from truckrl.planning.planner import held_out_states
+    from truckrl.planning import held_out_states
 
     states = held_out_states(env, int(res["scene_index"].numel()), 0, difficulty=4.0)
     n = states.batch_size[0]
@@ -252,7 +266,6 @@ def test_reverses_straight_back_to_a_goal_behind():
 )
 def test_reverses_to_a_goal_behind_and_sideways(episodes, need):
     # 3-5 m sideways: more than the 1.875 m tolerance, so backing straight does not succeed
-    # (knots alone, pursuit=none, solve 1 of 10 such scenes with this budget)
     env = EnvConfig(max_steps=300, task={**REVERSE, "offset": [3.0, 5.0]})
     cfg = {**FAST, "samples": 48, "iterations": 6, "attempts": 2, "scenes_per_batch": episodes}
     res, _, _ = plan_episodes(env, 4.0, episodes=episodes, seed=0, config=cfg)
@@ -295,7 +308,7 @@ def _steering_actor():
 
 def test_policy_actions_replayed_open_loop_reproduce_the_closed_loop_episodes():
     from truckrl.evaluation.rollout import policy_actions
-    from truckrl.planning.planner import held_out_states
+    from truckrl.planning import held_out_states
 
     env, actor = EnvConfig(max_steps=40), _steering_actor()
     closed, _, _ = evaluate_policy(actor, env, 2.0, episodes=6, seed=5)

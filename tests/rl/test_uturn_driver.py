@@ -9,7 +9,7 @@ import torch
 from tensordict import TensorDict
 
 from truckrl.config.fields import build
-from truckrl.planning.planner import held_out_states
+from truckrl.planning import held_out_states
 from truckrl.sim.control import ControlConfig
 from truckrl.tasks import EnvConfig
 from truckrl.tasks.uturn.expert import (
@@ -161,23 +161,69 @@ def test_driven_demos_are_successful_repeatable_episodes(demo_setup):
     assert (samples["action"][:, 0] < 0).any(), "someone brakes or reverses"
 
 
-def test_driver_demos_refuse_other_tasks():
+def test_driver_demos_refuse_a_task_without_a_scripted_demonstrator():
+    """``demos.source=driver`` asks the task folder's expert for ``demonstrations``: the
+    intersection's expert has none, the test-only reach folder no expert at all."""
     from types import SimpleNamespace
 
+    from truckrl.config.fields import ConfigError
     from truckrl.rl.imitation import bootstrap
 
-    cfg = build(EnvConfig, {"task": {"name": "intersection"}}, "env")
     dc = SimpleNamespace(source="driver", episodes=2, seed=1, difficulty=2.0)
-    with pytest.raises(ValueError, match="demos.source = driver drives task uturn only"):
+    for name in ("intersection", "tests.tasks.reach"):
+        cfg = build(EnvConfig, {"task": {"name": name}}, "env")
+        with pytest.raises(ConfigError, match="demos.source = driver needs a demonstrations") as e:
+            bootstrap(None, cfg, dc)
+        assert name in str(e.value) and len(str(e.value).splitlines()) == 1
+
+
+def test_driver_demos_come_from_the_task_folders_expert(monkeypatch):
+    """``bootstrap`` with ``source=driver`` calls the uturn expert's ``demonstrations`` with the
+    run's env config and ``demos`` settings (a stub here that solves nothing)."""
+    from types import SimpleNamespace
+
+    import truckrl.tasks.uturn.expert as expert
+    from truckrl.rl.imitation import bootstrap
+
+    calls = []
+
+    def stub(env_cfg, episodes, seed, difficulty):
+        calls.append((env_cfg.task.name, episodes, seed, difficulty))
+        return torch.zeros(episodes, dtype=torch.bool), TensorDict({}, batch_size=[0])
+
+    monkeypatch.setattr(expert, "demonstrations", stub)
+    cfg = build(EnvConfig, {"task": {"name": "uturn"}}, "env")
+    dc = SimpleNamespace(source="driver", episodes=3, seed=7, difficulty=2.0)
+    with pytest.raises(ValueError, match="the driver solved none of 3 scenes"):
         bootstrap(None, cfg, dc)
+    assert calls == [("uturn", 3, 7, 2.0)]
+
+
+def test_expert_demonstrations_drive_the_held_out_road_starts(monkeypatch):
+    """The uturn expert's ``demonstrations`` drives the held-out starts of the run's seed drawn
+    at the top of the start curriculum (road starts) with :func:`driven_demos`."""
+    import truckrl.tasks.uturn.expert as expert
+    from truckrl.tasks import MAX_DIFFICULTY
+
+    seen = {}
+
+    def fake(env_cfg, states, difficulty):
+        seen["states"], seen["difficulty"] = states, difficulty
+        return TensorDict({}, batch_size=[0]), torch.zeros(states.batch_size[0], dtype=torch.bool)
+
+    monkeypatch.setattr(expert, "driven_demos", fake)
+    cfg = build(EnvConfig, {"task": {"name": "uturn"}}, "env")
+    solved, samples = expert.demonstrations(cfg, 4, 5, 2.0)
+    assert solved.shape == (4,) and samples.batch_size[0] == 0 and seen["difficulty"] == 2.0
+    road = held_out_states(cfg, 4, 5, difficulty=MAX_DIFFICULTY)
+    assert torch.equal(seen["states"]["pose"], road["pose"])
 
 
 @pytest.mark.slow
 def test_scripted_driver_solves_most_default_scenes():
     """A lower bound on solvability: 200 default scenes (seed 11), each tried with the 288
     driver settings of :data:`GRID`; a scene counts as solvable when any setting reaches the
-    goal at difficulty 2 without collision or jack-knife (default control, accel / rate).
-    Measured: see the README ("Reversing")."""
+    goal at difficulty 2 without collision or jack-knife (default control, accel / rate)."""
     cfg = build(EnvConfig, {"task": {"name": "uturn"}, "max_steps": 1000}, "env")
     n, k = 200, len(GRID)
     states = held_out_states(cfg, n, 11, difficulty=4.0)

@@ -38,19 +38,25 @@ def task_expert(name: str) -> ModuleType | None:
         return None
 
 
+def _attribute(name: str, attr: str, setting: str, instead: str) -> Callable:
+    """Attribute ``attr`` of task ``name``'s expert, which ``setting`` needs (else a ConfigError
+    that suggests ``instead``)."""
+    found = getattr(task_expert(name), attr, None)
+    if found is None:
+        raise ConfigError(
+            f"{setting} needs a {attr}() in the expert.py of task {name!r}, which has none: "
+            f"use {instead}"
+        )
+    return found
+
+
 def steering_prior(name: str, mode: str = "arc") -> Callable:
     """Task ``name``'s steering prior for ``planner.steer_prior = mode``.
 
     Raises:
         ConfigError: the task's folder has no expert, or its expert no ``steering_prior``.
     """
-    prior = getattr(task_expert(name), STEERING_PRIOR, None)
-    if prior is None:
-        raise ConfigError(
-            f"planner.steer_prior = {mode!r} needs a {STEERING_PRIOR}() in the expert.py of "
-            f"task {name!r}, which has none: use steer_prior=none"
-        )
-    return prior
+    return _attribute(name, STEERING_PRIOR, f"planner.steer_prior = {mode!r}", "steer_prior=none")
 
 
 def scripted_demonstrations(name: str) -> Callable:
@@ -59,10 +65,4 @@ def scripted_demonstrations(name: str) -> Callable:
     Raises:
         ConfigError: the task's folder has no expert, or its expert no ``demonstrations``.
     """
-    drive = getattr(task_expert(name), DEMONSTRATIONS, None)
-    if drive is None:
-        raise ConfigError(
-            f"demos.source = driver needs a {DEMONSTRATIONS}() in the expert.py of task "
-            f"{name!r}, which has none: use demos.source=planner"
-        )
-    return drive
+    return _attribute(name, DEMONSTRATIONS, "demos.source = driver", "demos.source=planner")
