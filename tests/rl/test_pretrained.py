@@ -56,7 +56,7 @@ def test_the_shipped_intersection_policy_loads_and_drives():
     from truckrl.rl.policy import load_policy
 
     policy = load_policy("pretrained")
-    assert policy.difficulty == 6.0  # trained to the paper's goal (truckrl/pretrained/README.md)
+    assert policy.difficulty == 6.0  # trained to the paper's goal (intersection/pretrained.md)
     results, _, _ = evaluate_policy(policy.actor, policy.env_config, 2.0, episodes=8, seed=1)
     # an untrained policy succeeds in none of these; the shipped one in 8 of 8 (97.7 % at
     # difficulty 6 on 1,000 scenes): a wrong or broken file fails here
@@ -65,8 +65,8 @@ def test_the_shipped_intersection_policy_loads_and_drives():
 
 @pytest.mark.slow
 def test_the_shipped_intersection_policy_reaches_85_percent_at_difficulty_6():
-    """Issue 10's bar for the shipped file: >= 85 % on 200 held-out scenes at difficulty 6 (the
-    README's 1,000-scene figure is 97.7 %), on the README's evaluation seed 12345."""
+    """The bar for the shipped file: >= 85 % on 200 held-out scenes at difficulty 6 (its model
+    card's 1,000-scene figure is 97.7 %), on evaluate's default seed 12345."""
     from truckrl.evaluation.rollout import evaluate_policy
     from truckrl.rl.policy import load_policy
 
@@ -89,7 +89,7 @@ def test_the_shipped_dock_policy_loads_and_reverses_into_bays():
     )
     assert tol_pos == pytest.approx(0.15)
     # an untrained policy docks none of these (it never reaches a bay from the apron); the
-    # shipped one about 60 % of unseen scenes at 0.15 m / 0.1 rad (README, "Reversing")
+    # shipped one 81.6 % of 1,000 unseen scenes at 0.15 m / 0.1 rad (dock/pretrained.md)
     assert int(results["success"].sum()) >= 3
 
 
@@ -104,5 +104,5 @@ def test_the_shipped_uturn_policy_loads_and_turns_round():
     )
     assert tol_pos == pytest.approx(30.0 / 16)  # difficulty 4: every start on the road
     # an untrained policy turns none of these round (it needs a reverse leg); the shipped one
-    # 7 of 8 (82.2 % of 1,000 unseen scenes; README, "Reversing")
+    # 7 of 8 (82.2 % of 1,000 unseen scenes; uturn/pretrained.md)
     assert int(results["success"].sum()) >= 6

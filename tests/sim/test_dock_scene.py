@@ -279,7 +279,7 @@ def test_seeded_and_fast():
     params = sample_vehicle_params(VehicleConfig(), 1024, generator=g, reverse=True)
     t0 = time.perf_counter()
     generate_dock_scenes(CFG, params, generator=g)
-    assert time.perf_counter() - t0 < 1.0  # batched: ~10 ms for 1,024 scenes
+    assert time.perf_counter() - t0 < 1.0  # batched: far below a second
 
 
 def test_config_checks():

@@ -67,7 +67,7 @@ def evaluate_policy(
         :func:`truckrl.planning.planner.held_out_states` of the same env config, seed and
         difficulty.
     """
-    # eager: a one-off batch does not repay ~20 s of torch.compile
+    # eager: a one-off batch does not repay the compile time
     env_cfg = dataclasses.replace(env_cfg, compile=False)
     env = TruckEnv(num_envs=episodes, device=device, config=env_cfg, seed=seed)
     env.set_difficulty(difficulty)

@@ -92,8 +92,8 @@ class LidarEncoder(nn.Module):
 
     The layers are ``nn.Conv1d`` modules (their parameters are the checkpoint's), but the forward
     pass multiplies by each layer's dense ring matrix (:func:`circular_conv_index`) instead of
-    calling the convolution: with 1-4 channels on 16 beams, one ``addmm`` forward and backward is
-    about 7x faster on a CPU than the oneDNN convolution, and the results agree to float rounding
+    calling the convolution: with 1-4 channels on tens of beams, one ``addmm`` forward and backward
+    costs less on a CPU than the oneDNN convolution, and the results agree to float rounding
     (``tests/rl/test_network.py`` checks it against ``Conv1d``). A ring shorter than the kernel
     (taps wrapping twice) falls back to the convolution.
     """

@@ -138,8 +138,8 @@ UPDATE_SPANS = ("gae", "loss_forward", "backward", "optimizer", "metrics")
 def _take_rows(td: TensorDictBase, index: Tensor) -> TensorDictBase:
     """``td[index]`` for a 1-D long ``index`` ``[K]`` into dim 0 of a ``[N]`` tensordict.
 
-    One ``index_select`` per entry: the same rows as advanced indexing (``td[index]``), which
-    took ~5x longer on a CPU for 65,536 rows of 32 floats.
+    One ``index_select`` per entry: the same rows as advanced indexing (``td[index]``), which is
+    slower on a CPU for large batches.
     """
     return td.apply(lambda t: t.index_select(0, index), batch_size=index.shape)
 
@@ -191,7 +191,7 @@ class PPO:
             normalize_advantage=False,
             clip_value=cfg.clip_epsilon if cfg.clip_value else None,
             # the modules' own parameters (no target networks here): the same numbers without
-            # swapping a parameter copy into the modules on every call (~1 ms per minibatch)
+            # swapping a parameter copy into the modules on every call
             functional=False,
         )
         # ppo.compile: one graph for the loss's forward and backward; the same minibatch size
@@ -202,7 +202,7 @@ class PPO:
             else self._minibatch_objective
         )
         # foreach: one kernel per op for all parameters instead of one per parameter (the CPU
-        # default is the per-parameter loop); same arithmetic, bit for bit, ~20 % less step time
+        # default is the per-parameter loop); same arithmetic, bit for bit, less step time
         self.optimizer = torch.optim.Adam(ac.model.parameters(), lr=cfg.lr, foreach=True)
         self.schedule = (
             AdaptiveKLSchedule(cfg.lr, cfg.desired_kl, cfg.lr_min, cfg.lr_max)
@@ -311,8 +311,8 @@ class PPO:
         """
         dev = batch.device if batch.device is not None else torch.device("cpu")
         with _span(timings, "gae", dev):
-            # only what the loss and the KL read: indexing every collected key per minibatch
-            # cost ~15 %
+            # only what the loss and the KL read: every collected key would be indexed per
+            # minibatch
             batch = self.compute_advantages(batch).reshape(-1).select(*_UPDATE_KEYS)
         n = batch.numel()
         mb_size = self.cfg.check_batch(n)

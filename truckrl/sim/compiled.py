@@ -8,13 +8,10 @@ same way.
 inlining it into the kernel that reads it, once its loop body has more than
 ``realize_cpu_opcount_threshold`` (50) operations. The LiDAR's pair test
 (:func:`~truckrl.sim.geometry.ray_distance_from_origin`, [N, R, E] distances reduced by a minimum
-over the E segments) has 50-60. Above the threshold, the compiled LiDAR wrote all ``N x R x E``
-pair distances and read them back to reduce them: 67 MB per step at N = 1,024, R = 256, E = 64.
-With the threshold at :data:`CPU_OPCOUNT_THRESHOLD` the minimum is taken inside the pair loop
-(README, Benchmarks, "eighth pass"): the compiled env at N = 1,024 went from 31 k to 74 k
-env-steps/s with 256 beams (medians of three alternating rounds), and at 16 and 32 beams gained
-1.05x, inside the machine's noise; the compiled LiDAR alone at R = 256 went 29-33 ms -> 11 ms.
-On CUDA, inductor's own default is kept (not measured there).
+over the E segments) has 50-60. Above the threshold, the compiled LiDAR writes all ``N x R x E``
+pair distances and reads them back to reduce them (``4 N R E`` bytes per step in float32); with
+the threshold at :data:`CPU_OPCOUNT_THRESHOLD` the minimum is taken inside the pair loop, which
+matters most at many beams. On CUDA, inductor's own default is kept.
 """
 
 from __future__ import annotations

@@ -33,7 +33,7 @@ DEFAULT_TASK = "intersection"
 
 @dataclass
 class TaskConfig:
-    """Base of every task's config; ``name`` picks the task module ``truckrl.tasks.<name>``."""
+    """Base of every task's config; ``name`` picks the task folder ``truckrl/tasks/<name>/``."""
 
     name: str = param(DEFAULT_TASK, doc="task package under truckrl/tasks/")
 

@@ -27,7 +27,7 @@ def task_class(name: str) -> type:
     """The :class:`~truckrl.tasks.base.Task` subclass of task ``name``.
 
     Raises:
-        ConfigError: no such task module, or it defines no ``TASK``.
+        ConfigError: no such task package, or it defines no ``TASK``.
     """
     parts = name.split(".") if isinstance(name, str) else [""]
     if not all(p.isidentifier() for p in parts) or (len(parts) == 1 and name not in task_names()):

@@ -113,7 +113,7 @@ class StartCurriculumConfig:
 class DockConfig(TaskConfig):
     """Config of the dock task: scene rules, rest test, tolerance floors, curriculum, rewards."""
 
-    name: str = param("dock", choices=("dock",), doc="task module")
+    name: str = param("dock", choices=("dock",), doc="task folder")
     scene: DockSceneConfig = field(default_factory=DockSceneConfig)
     reward: DockRewardConfig = field(default_factory=DockRewardConfig)
     start: StartCurriculumConfig = field(default_factory=StartCurriculumConfig)

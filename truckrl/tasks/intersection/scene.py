@@ -36,9 +36,9 @@ stays in its half of the road and fully on it).
 * Left turns leave the trailer room to straighten (``left_turn_exit``, :func:`left_turn_exit`):
   the goal lies at least ``(tan(turn / 2) + left_turn_exit)`` trailer wheelbases past the corner
   of the start and goal lanes; a pair that does not is rejected like one that does not fit its
-  arm. Without it (``left_turn_exit = 0``) about 3 % of all scenes were sharp left turns of long
-  trailers that neither the planner nor the trained policy solved at difficulty 6; right turns
-  needed no such rule (every one was solved).
+  arm. Without it (``left_turn_exit = 0``) some sharp left turns of long trailers leave no room
+  to straighten: neither the planner nor a trained policy solves them at difficulty 6. Right
+  turns need no such rule.
 
 Each scene records its **route** (``SceneBatch.route``): :data:`ROUTE_STRAIGHT_ROAD` (a straight
 road scene, fallbacks included), or at a crossing :data:`ROUTE_STRAIGHT_ON` (goal on the opposite
@@ -244,7 +244,7 @@ class SceneConfig:
         hi=100.0,
         unit="trailer wheelbases",
         doc="left turns: the goal lies at least (tan(turn / 2) + this) x trailer wheelbase past "
-        "the corner of the start and goal lanes (0 = no such rule, as before it existed)",
+        "the corner of the start and goal lanes (0 = no such rule: experiment=paper)",
         source="measured with python -m truckrl.plan (README, Scenes that are solvable)",
     )
 

@@ -70,7 +70,7 @@ class RewardConfig:
 class IntersectionConfig(TaskConfig):
     """Config of the intersection task: scene rules and reward weights."""
 
-    name: str = param("intersection", choices=("intersection",), doc="task module")
+    name: str = param("intersection", choices=("intersection",), doc="task folder")
     scene: SceneConfig = field(default_factory=SceneConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
 

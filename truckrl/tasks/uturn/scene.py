@@ -58,7 +58,7 @@ across the branch: from heading ``pi / 2`` into it to ``3 pi / 2`` out of it, th
 ``2 R`` along the road). Not excluded by this bound: a forward loop that uses the road, the
 chamfered mouth and the branch together (heading ``0 -> pi`` ending up in the branch, then out
 and round on the road). Whether such a loop exists for the tractor-trailer at the sampled
-geometry is not checked here; a forward-only run of the planner baseline (issue 14) would be.
+geometry is not checked here; a forward-only run of the planner baseline would check it.
 
 Why the branch takes the truck (the branch rule)
 ------------------------------------------------
@@ -409,7 +409,7 @@ def generate_uturn_scenes(
         "mouth_y": centre[:, 1],
         "road_heading": heading,
     }
-    # drawn last, so that every earlier draw (and so every scene) is as before these keys existed
+    # drawn last, so that the earlier draws (and so the scenes) do not depend on these keys
     late = torch.rand(n, 2, generator=generator, device=dev)
     info.update(
         mouth_chamfer=chamfer,

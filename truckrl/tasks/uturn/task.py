@@ -172,7 +172,7 @@ class UTurnStartConfig:
 class UTurnConfig(TaskConfig):
     """Config of the uturn task: scene rules, reward weights and the start curriculum."""
 
-    name: str = param("uturn", choices=("uturn",), doc="task module")
+    name: str = param("uturn", choices=("uturn",), doc="task folder")
     scene: UTurnSceneConfig = field(default_factory=UTurnSceneConfig)
     reward: UTurnRewardConfig = field(default_factory=UTurnRewardConfig)
     start: UTurnStartConfig = field(default_factory=UTurnStartConfig)
