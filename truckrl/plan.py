@@ -1,153 +1,99 @@
-"""``python -m truckrl.plan``: the sampling-based planner baseline on held-out scenes.
+"""``truckrl plan``: the sampling-based planner baseline on held-out scenes.
 
-    python -m truckrl.plan --episodes 200 --seed 12345 --difficulty 6
+    truckrl plan episodes=200 seed=12345 difficulty=6
 
-Plans each of the ``--episodes`` scenes that ``python -m truckrl.evaluate episodes=N seed=S``
-scores (same seed and count, same scenes) with the CEM planner of
-:mod:`truckrl.planning.planner`, confirms every plan by replaying it through a fresh ``TruckEnv``,
-and prints the outcome rates, the final errors and the per-category table
-(:mod:`truckrl.evaluation.categories`). The JSON (default ``outputs/plan/<date>/<time>/plan.json``)
-holds the summary, the category rows, the timing and, per episode, its route, vehicle, outcome,
-errors and the action sequence (replay it with ``TruckEnv.set_state`` and ``step``).
+Plans each of the ``episodes`` scenes that ``truckrl eval episodes=N seed=S`` scores (same seed
+and count, same scenes) with the CEM planner of :mod:`truckrl.planning.planner`, confirms every
+plan by replaying it through a fresh ``TruckEnv``, and prints the outcome rates, the final errors
+and the per-category table (:mod:`truckrl.evaluation.categories`). The JSON (``out``; default
+``outputs/plan/<date>/<time>/plan.json``) holds the summary, the category rows, the timing and,
+per episode, its scene info, vehicle, outcome, errors and the action sequence (replay it with
+``TruckEnv.set_state`` and ``step``).
 
-``--policy CHECKPOINT`` (a run dir, a ``.pt`` file or ``pretrained``) also drives each scene
+``checkpoint=CHECKPOINT`` (a run dir, a ``.pt`` file or ``pretrained``) also drives each scene
 with that policy's mean action and replays its action sequence beside the planner's candidates:
 a scene counts as solvable when either replay succeeds. The env config is then the
-checkpoint's (``--env`` overrides on top; the task and beam count stay), so the scenes are those
-of ``python -m truckrl.evaluate checkpoint=CHECKPOINT``; the report gives the planner alone, the
-policy alone and either, overall and per category.
+checkpoint's (``env.FIELD=VALUE`` on top; the task and beam count stay), so the scenes are those
+of ``truckrl eval checkpoint=CHECKPOINT``; the report gives the planner alone, the policy alone
+and either, overall and per category.
 
-``--env KEY=VALUE`` overrides an env config field (``max_steps=300``,
-``task.scene.road_width=[14,18]``, ``control.lateral=angle``; values in YAML), ``--planner
-KEY=VALUE`` a :class:`~truckrl.planning.planner.PlannerConfig` field. Bad options print one line and
-exit with code 2.
+``env.FIELD=VALUE`` changes an env config field (``env.max_steps=300``,
+``env.task.scene.road_width=[14,18]``, ``env.control.lateral=angle``), ``planner.FIELD=VALUE`` a
+:class:`~truckrl.planning.planner.PlannerConfig` field (``planner.samples=64``,
+``planner.compile=false``), ``category`` plans only the scenes in every named bin of the task
+(``category="[route right]"``, as the category table prints them). Bad input prints one line and
+exits with code 2.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import math
 import sys
 import time
+from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-import torch
-import yaml
+from truckrl.config.fields import ConfigError, param, validate
+from truckrl.planning.config import PlannerConfig
+from truckrl.tasks import MAX_DIFFICULTY, OUTCOMES
 
-from truckrl.cli import OneLineArgParser, git_revision, run_or_fail
-from truckrl.config.fields import ConfigError, build, check_range
-from truckrl.evaluation.categories import format_category_table, summarize_by_category, task_bins
-from truckrl.evaluation.rollout import summarize
-from truckrl.planning.planner import PlannerConfig, category_info, plan_episodes
-from truckrl.tasks import MAX_DIFFICULTY, OUTCOMES, EnvConfig
-from truckrl.tasks.intersection.scene import ROUTE_KEYS, ROUTE_NAMES
-
-#: ``--route`` names (spaces as underscores) -> route value.
-ROUTES = {name.replace(" ", "_"): i for i, name in enumerate(ROUTE_NAMES)}
+PROG = "truckrl plan"
+ABOUT = "The CEM planner baseline on the held-out scenes of truckrl eval (same seed, same scenes)."
 
 
-def _overrides(items: list[str], where: str) -> dict[str, Any]:
-    """``["a.b=1", ...]`` -> nested ``{"a": {"b": 1}}`` (values parsed as YAML)."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, raw = item.partition("=")
-        if not sep or not key:
-            raise ConfigError(f"{where} override {item!r} must look like KEY=VALUE")
-        try:
-            value = yaml.safe_load(raw)
-        except yaml.YAMLError:
-            raise ConfigError(f"{where}.{key}: cannot parse value {raw!r}") from None
-        node = out
-        *parents, leaf = key.split(".")
-        for p in parents:
-            node = node.setdefault(p, {})
-            if not isinstance(node, dict):
-                raise ConfigError(f"{where} override {item!r} conflicts with another")
-        node[leaf] = value
-    return out
+@dataclass
+class PlanConfig:
+    """Which scenes, which planner, and where the JSON goes."""
 
-
-def parser() -> argparse.ArgumentParser:
-    p = OneLineArgParser(prog="python -m truckrl.plan", description=__doc__.split("\n\n")[0])
-    p.add_argument("--episodes", type=int, default=200, help="held-out scenes (default 200)")
-    p.add_argument("--seed", type=int, default=12345, help="scene seed (default 12345)")
-    p.add_argument("--difficulty", type=float, default=6.0, help="goal tolerance level (default 6)")
-    p.add_argument(
-        "--route",
-        action="append",
-        default=[],
-        choices=sorted(ROUTES),
-        help="plan only scenes of this route (repeatable; default all)",
+    episodes: int = param(200, lo=1, hi=1_000_000, doc="held-out scenes")
+    seed: int = param(12345, lo=0, hi=2**62, doc="scene seed (evaluate's by default)")
+    difficulty: float = param(6.0, lo=0.0, hi=MAX_DIFFICULTY, doc="goal tolerance level")
+    category: tuple[str, ...] = param(
+        (), min_len=0, doc="plan only scenes in every bin 'DIMENSION BIN' (category table); all"
     )
-    p.add_argument("--samples", type=int, help="candidates per scene per iteration")
-    p.add_argument("--iterations", type=int, help="CEM iterations per scene (max)")
-    p.add_argument("--scenes-per-batch", type=int, help="scenes rolled out together")
-    p.add_argument(
-        "--planner",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="PlannerConfig field (repeatable)",
+    checkpoint: str | None = param(
+        None, doc="also replay this policy's mean actions: solvable = planner or policy"
     )
-    p.add_argument(
-        "--env",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="env config field, e.g. max_steps=300 (repeatable)",
-    )
-    p.add_argument(
-        "--policy",
-        metavar="CHECKPOINT",
-        help="also replay this checkpoint's mean actions: solvable = planner or policy solves it",
-    )
-    p.add_argument("--no-compile", action="store_true", help="eager rollouts (no ~15 s compile)")
-    p.add_argument("--device", default="cpu", help="cpu | cuda[:i]")
-    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
-    p.add_argument("--output", help="JSON file (default outputs/plan/<date>/<time>/plan.json)")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
-    return p
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    env: dict[str, Any] = param({}, doc="env config fields (env.max_steps=300)")
+    device: str = param("cpu", doc="cpu | cuda[:i]")
+    threads: int = param(1, lo=1, hi=1024, doc="torch CPU threads")
+    out: str | None = param(None, doc="JSON file; null: outputs/plan/<date>/<time>/plan.json")
+    quiet: bool = param(False, doc="no progress lines")
+
+    def __post_init__(self) -> None:
+        if isinstance(self.category, str):  # one value for a list of one
+            self.category = (self.category,)
+        validate(self)
 
 
-def configure(args: argparse.Namespace) -> tuple[EnvConfig, PlannerConfig, Any]:
-    """Validate the options; raise :class:`ConfigError` naming the bad one (a bad ``--policy``:
-    :class:`~truckrl.rl.checkpoint.CheckpointError`).
+def configure(args: PlanConfig) -> tuple[Any, Any]:
+    """The env config and the loaded ``checkpoint`` (or None).
 
-    Returns:
-        ``(env config, planner config, the loaded --policy or None)``.
+    Raises:
+        ConfigError: a bad env field or device; CheckpointError: an unusable checkpoint.
     """
-    if args.episodes < 1 or args.episodes > 1_000_000:
-        raise ConfigError(f"--episodes = {args.episodes} must be in [1, 1000000]")
-    if args.seed < 0:
-        raise ConfigError(f"--seed = {args.seed} must be >= 0")
-    check_range("--difficulty", args.difficulty, 0.0, MAX_DIFFICULTY)
-    if args.threads < 1:
-        raise ConfigError(f"--threads = {args.threads} must be >= 1")
-    if args.device != "cpu" and not (args.device.startswith("cuda") and torch.cuda.is_available()):
-        raise ConfigError(f"--device = {args.device!r}: not available (cpu, or cuda with a GPU)")
-    policy = None
-    if args.policy:
+    from truckrl.config.fields import build
+    from truckrl.config.schemas import check_device
+    from truckrl.tasks import EnvConfig
+
+    check_device("device", args.device)
+    if args.checkpoint:
         from truckrl.rl.policy import load_policy
         from truckrl.tasks.config import with_env_overrides
 
-        policy = load_policy(args.policy, args.device)
-        env_cfg = with_env_overrides(policy.env_config, _overrides(args.env, "env"), fixed=True)
-    else:
-        env_cfg = build(EnvConfig, _overrides(args.env, "env"), "env")
-    planner = _overrides(args.planner, "planner")
-    for name in ("samples", "iterations", "scenes_per_batch"):
-        if getattr(args, name) is not None:
-            planner[name] = getattr(args, name)
-    if args.no_compile:
-        planner["compile"] = False
-    return env_cfg, build(PlannerConfig, planner, "planner"), policy
+        policy = load_policy(args.checkpoint, args.device)
+        return with_env_overrides(policy.env_config, args.env, fixed=True), policy
+    return build(EnvConfig, args.env, "env"), None
 
 
 def _jsonable(x: Any) -> Any:
+    import torch
+
     if isinstance(x, torch.Tensor):
         return x.tolist()
     if isinstance(x, float) and not math.isfinite(x):
@@ -155,19 +101,41 @@ def _jsonable(x: Any) -> Any:
     return x
 
 
-def run(args: argparse.Namespace) -> dict:
-    env_cfg, pc, loaded = configure(args)
-    torch.set_num_threads(args.threads)
-    indices = None
-    if args.route:
-        from truckrl.planning.planner import held_out_states
+def scene_indices(env_cfg: Any, args: PlanConfig):
+    """The held-out scenes in every ``args.category`` (LongTensor), or None for all of them.
 
-        route = held_out_states(env_cfg, args.episodes, args.seed, args.device, args.difficulty)
-        route = route["route", "route"]
-        wanted = torch.tensor([ROUTES[r] for r in args.route])
-        indices = torch.isin(route.cpu().long(), wanted).nonzero().squeeze(-1)
-        if indices.numel() == 0:
-            raise ConfigError(f"no scene of route {args.route} among the {args.episodes}")
+    Raises:
+        ConfigError: a category the task does not have, or no scene in them.
+    """
+    if not args.category:
+        return None
+    from truckrl.evaluation.categories import task_bins
+    from truckrl.evaluation.rollout import SCENE_INFO_ENTRIES
+    from truckrl.planning.planner import held_out_states
+    from truckrl.sim.vehicle import trailer_length
+    from truckrl.tools.paths import category_mask
+
+    states = held_out_states(env_cfg, args.episodes, args.seed, args.device, args.difficulty)
+    info = {"trailer_length": trailer_length(states["params"])}
+    for entry in SCENE_INFO_ENTRIES:
+        if entry in states.keys():
+            info |= {k: states[entry, k] for k in states[entry].keys()}
+    task = env_cfg.task.name
+    keep = category_mask(task_bins(task, info), args.category, task, info["trailer_length"] > -1)
+    indices = keep.cpu().nonzero().squeeze(-1)
+    if indices.numel() == 0:
+        raise ConfigError(f"category = {list(args.category)}: no scene of the {args.episodes}")
+    return indices
+
+
+def run(args: PlanConfig) -> dict:
+    import torch
+
+    from truckrl.planning.planner import plan_episodes
+
+    env_cfg, loaded = configure(args)
+    torch.set_num_threads(args.threads)
+    indices = scene_indices(env_cfg, args)
     t0 = time.perf_counter()
     last = [0.0]
 
@@ -177,22 +145,38 @@ def run(args: argparse.Namespace) -> dict:
             last[0] = now
             print(f"  {now:7.1f} s  {done}/{total} scenes planned", file=sys.stderr, flush=True)
 
-    results, (tol_pos, tol_deg), errors = plan_episodes(
+    results, tolerance, errors = plan_episodes(
         env_cfg,
         args.difficulty,
         args.episodes,
         args.seed,
-        pc,
+        args.planner,
         args.device,
         indices,
         progress,
         loaded.actor if loaded else None,
     )
     seconds = time.perf_counter() - t0
+    out, rows = report(args, env_cfg, loaded, results, tolerance, errors)
+    out["seconds"] = seconds
+    output = Path(args.out) if args.out else default_output()
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(json.dumps(out, default=_jsonable) + "\n")
+    out["output"] = str(output)
+    print_report(out, errors, rows)
+    return out
+
+
+def report(args: PlanConfig, env_cfg, loaded, results: dict, tolerance, errors):
+    """The JSON record of a plan run and its category rows."""
+    from truckrl.cli import git_revision
+    from truckrl.evaluation.categories import summarize_by_category, task_bins
+    from truckrl.evaluation.rollout import summarize
+    from truckrl.planning.planner import category_info
+
     n = int(results["success"].numel())
     summary = summarize(results, errors)
-    # the task's bins (intersection: route, turn, ...; others: their category_dims), if any
-    bins = task_bins(env_cfg.task.name, category_info(results))
+    bins = task_bins(env_cfg.task.name, category_info(results))  # None: the task has none
     rows = summarize_by_category(results, bins, errors) if bins else []
     sources = {}
     if loaded:
@@ -205,22 +189,21 @@ def run(args: argparse.Namespace) -> dict:
     steps = results["rollouts"] * env_cfg.max_steps
     out = {
         "difficulty": args.difficulty,
-        "tolerance_position_m": tol_pos,
-        "tolerance_heading_deg": tol_deg,
+        "tolerance_position_m": tolerance[0],
+        "tolerance_heading_deg": tolerance[1],
         "seed": args.seed,
         "episodes": args.episodes,
-        "routes": args.route or "all",
+        "categories_planned": list(args.category) or "all",
         "planned": n,
         **{k: v for k, v in summary.items() if k != "episodes"},
         "planned_success_rate": results["planned_success"].float().mean().item(),
         "replay_mismatches": int(results["replay_mismatch"].sum()),
-        "seconds": seconds,
         "plan_seconds": results["plan_seconds"],
         "rollouts": results["rollouts"],
         "max_truck_steps_per_s": steps / max(results["plan_seconds"], 1e-9),
         "threads": args.threads,
         "device": args.device,
-        "planner": dataclasses.asdict(pc),
+        "planner": dataclasses.asdict(args.planner),
         "env": dataclasses.asdict(env_cfg),
         "source": git_revision(),
         "categories": rows,
@@ -235,12 +218,7 @@ def run(args: argparse.Namespace) -> dict:
         out["planner_alone"] = sources["planner"]
         for e, ok in zip(out["per_episode"], results["solved_by_extra"].tolist(), strict=True):
             e["solved_by"] = "policy" if ok else ("planner" if e["success"] else None)
-    output = Path(args.output) if args.output else default_output()
-    output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(json.dumps(out, default=_jsonable) + "\n")
-    out["output"] = str(output)
-    print_report(out, errors, rows)
-    return out
+    return out, rows
 
 
 def _per_episode(results: dict, errors) -> list[dict]:
@@ -261,10 +239,8 @@ def _per_episode(results: dict, errors) -> list[dict]:
         for k in keys:
             v = results[k][j].item()
             e[k] = v if not isinstance(v, float) or math.isfinite(v) else None
-        e["route"] = {k: results[k][j].item() for k in ROUTE_KEYS if k in results}
-        others = [k for k in results["scene_info_keys"] if k not in ROUTE_KEYS]
-        if others:
-            e["scene_info"] = {k: results[k][j].item() for k in others}
+        if results["scene_info_keys"]:  # the task's scene metadata (route, angles, ...)
+            e["scene_info"] = {k: results[k][j].item() for k in results["scene_info_keys"]}
         e["params"] = {k: v[j].item() for k, v in results["params"].items()}
         e["actions"] = results["actions"][j, : int(results["length"][j])].tolist()
         eps.append(e)
@@ -278,7 +254,8 @@ def default_output() -> Path:
 
 def print_report(s: dict, errors, rows: list[dict]) -> None:
     print(
-        f"{s['planned']} scenes (of {s['episodes']}, seed {s['seed']}, routes {s['routes']}) at "
+        f"{s['planned']} scenes (of {s['episodes']}, seed {s['seed']}, categories "
+        f"{s['categories_planned']}) at "
         f"difficulty {s['difficulty']:g} (tolerance {s['tolerance_position_m']:.3g} m, "
         f"{s['tolerance_heading_deg']:.3g} deg)"
     )
@@ -291,6 +268,8 @@ def print_report(s: dict, errors, rows: list[dict]) -> None:
         key = f"{q.key}_{q.shown_unit}"
         print(f"{f'{q.key} [{q.shown_unit}]':<30}{s[f'{key}_mean']:>10.3f}{s[f'{key}_p95']:>10.3f}")
     if rows:
+        from truckrl.evaluation.categories import format_category_table
+
         print(format_category_table(rows))
     if "policy" in s:
         print(format_sources(s))
@@ -302,7 +281,7 @@ def print_report(s: dict, errors, rows: list[dict]) -> None:
 
 
 def format_sources(s: dict) -> str:
-    """Success per category of the planner alone, the policy alone and either (``--policy``)."""
+    """Success per category of the planner alone, the policy alone and either (``checkpoint``)."""
     planner, policy = s["planner_alone"], s["policy"]
     lines = [
         f"solvable = planner or policy ({policy['checkpoint']}, {policy['frames']:,} frames), "
@@ -323,7 +302,10 @@ def format_sources(s: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run_or_fail(run, parser().parse_args(argv))
+    from truckrl.cli import key_value_config, run_or_fail
+
+    cfg = key_value_config(PlanConfig, sys.argv[1:] if argv is None else argv, PROG, ABOUT)
+    return run_or_fail(run, cfg)
 
 
 if __name__ == "__main__":

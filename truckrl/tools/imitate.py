@@ -1,76 +1,76 @@
-"""``python -m truckrl.tools.imitate``: a PPO start cloned from planner demonstrations.
+"""``truckrl tools imitate``: a PPO start cloned from planner demonstrations.
 
-    python -m truckrl.plan --episodes 600 --seed 99991 --difficulty 4 --output demos.json
-    python -m truckrl.tools.imitate demos.json --out outputs/bc
-    python -m truckrl.train resume=outputs/bc
+    truckrl plan episodes=600 seed=99991 difficulty=4 out=demos.json
+    truckrl tools imitate plan=demos.json out=outputs/bc
+    truckrl train resume=outputs/bc
 
-Rebuilds the scenes of a ``python -m truckrl.plan`` JSON (its ``episodes``, ``seed`` and env
-config), replays its successful action sequences, fits the training config's actor to them
+Rebuilds the scenes of a ``truckrl plan`` JSON (its ``episodes``, ``seed`` and env config),
+replays its successful action sequences, fits the training config's actor to them
 (:mod:`truckrl.rl.imitation`) and writes ``<out>/checkpoints/last.pt``: a training checkpoint at
 iteration 0 (the curriculum at its start, a fresh optimizer) with the train config composed from
-``OVERRIDE``s like ``python -m truckrl.train`` would, so that ``train resume=<out>`` continues it
-as a run of its own. ``python -m truckrl.train demos.episodes=N`` (the default experiment) does
-all of this inside the run. The plan must have been made with the same env config as the training
-(apart from ``compile`` and the reward weights). Use a seed that no evaluation uses: the held-out
-seeds are ``evaluate``'s 12345 and training's own (``truckrl/evaluation/heldout.py``). Bad options
-print one line and exit with code 2.
+``train.KEY=VALUE`` overrides like ``truckrl train KEY=VALUE`` would, so that ``train
+resume=<out>`` continues it as a run of its own. ``truckrl train demos.episodes=N`` (the default
+experiment) does all of this inside the run. The plan must have been made with the same env
+config as the training (apart from ``compile`` and the reward weights). Use a seed that no
+evaluation uses: the held-out seeds are ``eval``'s 12345 and training's own
+(``truckrl/evaluation/heldout.py``). Bad input prints one line and exits with code 2.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
 import time
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
+from typing import Any
 
-from truckrl.cli import OneLineArgParser, run_or_fail
+from truckrl.config.fields import ConfigError, param, validate
 from truckrl.config.schemas import DemosConfig
 
+PROG = "truckrl tools imitate"
+ABOUT = "Clone planner demonstrations into a training checkpoint that `truckrl train resume=<out>` continues."
 _DEMOS = DemosConfig()  # the defaults that `train demos.episodes=N` clones with too
-#: Options: (default, low, high, help).
-NUMERIC = {
-    "epochs": (_DEMOS.epochs, 1, 100_000, "passes over the demonstration samples"),
-    "lr": (_DEMOS.lr, 1e-7, 1.0, "Adam learning rate"),
-    "batch_size": (_DEMOS.batch_size, 1, 10_000_000, "samples per minibatch"),
-    "std": (_DEMOS.std, 1e-3, 10.0, "policy std set after cloning [action units]"),
-    "threads": (2, 1, 1024, "torch CPU threads"),
-}
 
 
-def parser() -> argparse.ArgumentParser:
-    p = OneLineArgParser(
-        prog="python -m truckrl.tools.imitate",
-        description="Clone planner demonstrations into a training checkpoint that "
-        "`python -m truckrl.train resume=<out>` continues.",
+@dataclass
+class ImitateConfig:
+    """The plan to learn from, the cloning, and where the checkpoint goes."""
+
+    plan: str | None = param(None, doc="JSON written by truckrl plan; required")
+    out: str | None = param(None, doc="run dir to create; null: outputs/imitate/<date>/<time>")
+    epochs: int = param(
+        _DEMOS.epochs, lo=1, hi=100_000, doc="passes over the demonstration samples"
     )
-    p.add_argument("plan", help="JSON written by python -m truckrl.plan")
-    p.add_argument("overrides", nargs="*", help="train config overrides (KEY=VALUE), as for train")
-    for name, (default, lo, hi, text) in NUMERIC.items():
-        kind = int if isinstance(default, int) else float
-        p.add_argument(f"--{name.replace('_', '-')}", type=kind, default=default,
-                       help=f"{text} (default {default:g}, {lo:g} .. {hi:g})")  # fmt: skip
-    p.add_argument("--out", help="run dir to create (default outputs/imitate/<date>/<time>)")
-    return p
+    lr: float = param(_DEMOS.lr, lo=1e-7, hi=1.0, doc="Adam learning rate")
+    batch_size: int = param(_DEMOS.batch_size, lo=1, hi=10_000_000, doc="samples per minibatch")
+    std: float = param(
+        _DEMOS.std, lo=1e-3, hi=10.0, unit="action units", doc="policy std set after cloning"
+    )
+    threads: int = param(2, lo=1, hi=1024, doc="torch CPU threads")
+    train: dict[str, Any] = param(
+        {}, doc="train config overrides, as for truckrl train (train.experiment=fast)"
+    )
+
+    def __post_init__(self) -> None:
+        validate(self)
+        if not self.plan:
+            raise ConfigError("plan is required: plan=<JSON written by truckrl plan>")
 
 
-def run(args: argparse.Namespace) -> Path:
-    from truckrl.config.fields import ConfigError
-
-    for name, (_, lo, hi, _) in NUMERIC.items():
-        value = getattr(args, name)
-        if not lo <= value <= hi:
-            raise ConfigError(f"--{name.replace('_', '-')} = {value:g} must be in [{lo:g}, {hi:g}]")
+def run(args: ImitateConfig, overrides: list[str]) -> Path:
+    """Clone ``args.plan`` into a checkpoint under ``args.out``; ``overrides``: the train config's
+    (``train.KEY=VALUE`` without ``train.``, as written)."""
     try:
         plan = json.loads(Path(args.plan).read_text())
         meta = {k: plan[k] for k in ("episodes", "seed", "difficulty", "env", "per_episode")}
     except (OSError, ValueError, KeyError, TypeError) as e:
-        raise ConfigError(f"plan {args.plan}: not a python -m truckrl.plan JSON ({e})") from None
+        raise ConfigError(f"plan {args.plan}: not a truckrl plan JSON ({e})") from None
     out = Path(args.out or f"outputs/imitate/{datetime.now():%Y-%m-%d/%H-%M-%S}")
     if (out / "checkpoints" / "last.pt").exists():
-        raise ConfigError(f"--out {out} already holds a checkpoint: choose another dir")
+        raise ConfigError(f"out = {str(out)!r} already holds a checkpoint: choose another dir")
 
     import torch
     import yaml
@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> Path:
     from truckrl.rl.network import make_actor_critic
     from truckrl.rl.ppo import PPO
 
-    tc = compose_config("train", TrainConfig, args.overrides)
+    tc = compose_config("train", TrainConfig, overrides)
     # as stored; the reward weights do not change what a plan does (the planner has its own cost),
     # nor does the LiDAR (a plan is actions from start states; the samples' scans are replayed
     # with this run's sensor, so a plan from the paper's 16 beams serves the default run's 32)
@@ -141,14 +141,19 @@ def run(args: argparse.Namespace) -> Path:
             indent=2,
         ) + "\n"
     )  # fmt: skip
-    print(f"checkpoint: {ckpt}\ntrain: python -m truckrl.train resume={out}")
+    print(f"checkpoint: {ckpt}\ntrain: truckrl train resume={out}")
     return out
 
 
-def main(argv: list[str] | None = None) -> None:
-    if run_or_fail(run, parser().parse_args(argv)):
-        sys.exit(2)
+def main(argv: list[str] | None = None) -> int:
+    from truckrl.cli import key_value_config, run_or_fail
+
+    argv = sys.argv[1:] if argv is None else list(argv)
+    cfg = key_value_config(ImitateConfig, argv, PROG, ABOUT)
+    # the train overrides as written (Hydra parses them; YAML would reformat their values)
+    overrides = [a.removeprefix("train.") for a in argv if a.startswith("train.")]
+    return run_or_fail(lambda c: run(c, overrides), cfg)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
