@@ -2,7 +2,7 @@
 
 The fields carry their range, unit and meaning (:func:`truckrl.config.fields.param`);
 ``python -m truckrl.config.schemas`` prints them as a table. Hydra composes these dataclasses as
-structured configs (``truckrl/entry.py``); YAML files only hold presets.
+structured configs (:func:`truckrl.config.schemas.register`); YAML files only hold presets.
 """
 
 from __future__ import annotations

@@ -113,8 +113,6 @@ def make_view(
     return View((float(c[0]), float(c[1])), float(metres_per_px), w, h)
 
 
-# Long on purpose: one pass that paints the layers in z-order (tolerance, curbs, obstacles,
-# LiDAR, bodies, goal, HUD); split up, each piece would need the view and a dozen arrays.
 # Long on purpose: one pass paints the layers in z-order (tolerance, curbs, obstacles, LiDAR,
 # bodies, goal, HUD); split up, each piece would need the view and a dozen arrays.
 def draw_scene(

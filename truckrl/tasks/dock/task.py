@@ -30,8 +30,9 @@
   axis), ``D`` growing with the difficulty; from ``apron_difficulty[0]`` on a growing share of the
   episodes (all from ``apron_difficulty[1]`` on) keep the generator's apron start. Both starts are
   collision-free by construction: the pulled truck stays in the target bay's strip, which holds no
-  segment up to ``start_clearance`` before the far curb (``pull_room``, :mod:`~truckrl.sim.
-  dock_scene`), and the apron start lies in the start band that no segment enters.
+  segment up to ``start_clearance`` before the far curb (``pull_room``,
+  :mod:`~truckrl.tasks.dock.scene`), and the apron start lies in the start band that no segment
+  enters.
 * Observation extras (after the shared 26): the goal rear-centre in the trailer frame (origin the
   trailer rear-centre, x along the trailer heading) / 50 m (2), ``max_reverse_speed`` mapped from
   its ``env.vehicle`` range to [-1, 1] (1), and ``speed / max_reverse_speed`` (1). The trailer
