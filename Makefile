@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 setup: $(STAMP)
 
 train: $(STAMP)
-	$(BIN)/python -m truckrl.train $(ARGS)
+	$(BIN)/truckrl train $(ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
@@ -34,7 +34,13 @@ format: $(STAMP)
 	$(BIN)/ruff check --fix .
 
 bench: $(STAMP)
-	$(BIN)/python -m truckrl.bench $(ARGS)
+	$(BIN)/truckrl bench $(ARGS)
+
+play: $(STAMP)
+	$(BIN)/truckrl play $(ARGS)
+
+scenes: $(STAMP)
+	$(BIN)/truckrl tools scenes $(ARGS)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache

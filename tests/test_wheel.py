@@ -47,6 +47,8 @@ def test_wheel_installs_in_a_fresh_venv_and_runs_from_elsewhere(tmp_path):
     for name in ("train", "evaluate", "play", "export", "control/accel_rate", "experiment/fast"):
         assert f"truckrl/conf/{name}.yaml" in names, name
     assert "truckrl/tasks/intersection/pretrained.pt" in names  # checkpoint=pretrained
+    for name in ("dock/conf/experiment/dock", "intersection/conf/train_scenes/demos_intersection"):
+        assert f"truckrl/tasks/{name}.yaml" in names, name  # the task folders' presets
     times["build"] = time.monotonic() - t0
 
     t0 = time.monotonic()
@@ -70,6 +72,13 @@ def test_wheel_installs_in_a_fresh_venv_and_runs_from_elsewhere(tmp_path):
     helped = run([py, "-m", "truckrl.evaluate", "--help"], elsewhere).stdout  # the help template
     assert "Deterministic evaluation" in helped and "checkpoint=" in helped
     assert "format: onnx" in run([py, "-m", "truckrl.export", "--help"], elsewhere).stdout
+    script = tmp_path / "venv" / "bin" / "truckrl"  # the console script
+    listed = run([script, "--help"], elsewhere).stdout
+    assert "usage: truckrl <command>" in listed and len(listed.splitlines()) < 25
+    dock = run([script, "train", "experiment=dock", "--cfg", "job"], elsewhere).stdout
+    assert "name: dock" in dock  # a task folder's preset, found from the installed package
+    crossings = run([script, "train", "--cfg", "job"], elsewhere).stdout
+    assert "crossing_prob: 1.0" in crossings  # train_scenes of the default experiment and task
     play = run([py, "-m", "truckrl.play", "headless=true", "max_frames=3"], elsewhere)
     assert "3 frames, 2 steps" in play.stdout
     shipped = run(
