@@ -160,13 +160,16 @@ def test_config_table_lists_every_field(capsys):
     out = capsys.readouterr().out
     assert "env.task.reward.progress" in out and "0.05" in out and "paper" in out
     assert main(["no.such.prefix"]) == 2
+    assert capsys.readouterr().err == "error: no config field starts with 'no.such.prefix'\n"
 
 
 @pytest.mark.e2e
-def test_config_table_cli():
-    proc = run_cli("configs", "env.vehicle")
+@pytest.mark.parametrize("prefix", ["env.vehicle", "prefix=env.vehicle"])
+def test_config_table_cli(prefix):
+    proc = run_cli("tools.configs", prefix)
     assert proc.returncode == 0, proc.stderr
     assert "env.vehicle.wheelbase" in proc.stdout and "[3.4, 4.2]" in proc.stdout
+    assert "ppo.lr" not in proc.stdout
 
 
 def test_default_run_ends_on_its_own():

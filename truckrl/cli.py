@@ -215,7 +215,9 @@ def with_task_presets(argv: list[str]) -> list[str]:
 
 # The presets' search path includes the user's ./conf overlay; run from elsewhere it is absent,
 # which is normal, so Hydra's warning about it would only be noise.
-warnings.filterwarnings("ignore", message=r"provider=hydra\.searchpath in main, path=conf")
+warnings.filterwarnings(
+    "ignore", message=r"provider=hydra\.searchpath in (main|command-line), path=conf"
+)
 
 
 def exit_on_help(config_name: str) -> None:
