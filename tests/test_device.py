@@ -24,10 +24,13 @@ import truckrl
 
 ROOT = Path(truckrl.__file__).parent
 
+#: Task-folder modules off the step path (demonstrations and diagnostics run host side).
+OFF_STEP_PATH = {"expert.py", "diagnosis.py"}
 #: Files on the step and update path.
 STEP_PATH = sorted(
-    [*(ROOT / "sim").glob("*.py"), *(ROOT / "task").glob("*.py"), ROOT / "env.py"]
-    + [ROOT / "agent" / f for f in ("ppo.py", "network.py", "collection.py", "metrics.py")]
+    [*(ROOT / "sim").glob("*.py"), *(ROOT / "env").glob("*.py")]
+    + [p for p in (ROOT / "tasks").rglob("*.py") if p.name not in OFF_STEP_PATH]
+    + [ROOT / "rl" / f for f in ("ppo.py", "network.py", "collection.py", "metrics.py")]
 )
 FACTORIES = {"zeros", "ones", "full", "empty", "arange", "tensor", "as_tensor", "rand", "randn"}
 FACTORIES |= {"randint", "randperm", "linspace", "eye"}
@@ -36,11 +39,11 @@ FACTORIES |= {"randint", "randperm", "linspace", "eye"}
 HOST_SIDE = {
     ("sim/lidar.py", "lidar_oracle"): "per-ray reference implementation, float64 on the host",
     ("sim/lidar.py", "__call__"): "SweepLidar: the paper's single-scene sweep, host side",
-    ("task/base.py", "__init__"): "param_index: moved by Task.to",
-    ("env.py", "__init__"): "draws a Python int seed",
-    ("env.py", "_set_seed"): "draws a Python int seed",
-    ("agent/network.py", "circular_conv_index"): "index table: a module buffer, moves with .to",
-    ("agent/network.py", "__init__"): "parameters and buffers: move with .to",
+    ("tasks/base.py", "__init__"): "param_index: moved by Task.to",
+    ("env/truck_env.py", "__init__"): "draws a Python int seed",
+    ("env/truck_env.py", "_set_seed"): "draws a Python int seed",
+    ("rl/network.py", "circular_conv_index"): "index table: a module buffer, moves with .to",
+    ("rl/network.py", "__init__"): "parameters and buffers: move with .to",
 }
 
 

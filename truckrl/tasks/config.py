@@ -92,7 +92,8 @@ class EnvConfig:
         doc="zero: replace NaN/inf actions by 0 and flag them; error: raise (syncs every step)",
     )
     compile: bool = param(
-        False, doc="torch.compile the step and observation (~20 s per process, fast for big N)"
+        False,
+        doc="torch.compile the step and observation (a compile per process; pays off for big N)",
     )
     episode_pool: int = param(
         256,
