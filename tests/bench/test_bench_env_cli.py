@@ -1,4 +1,4 @@
-"""``python -m truckrl.bench env``: a quick run within its budget, and one-line option errors."""
+"""``python -m truckrl.bench env``: a quick run within its budget, and one-line key errors."""
 
 import json
 import sys
@@ -11,7 +11,7 @@ pytestmark = pytest.mark.e2e
 
 
 def test_quick_run_prints_its_time_and_writes_json(tmp_path):
-    proc = run_cli("bench", "env", "--quick", "--out", str(tmp_path))
+    proc = run_cli("bench", "env", "quick=true", f"out={tmp_path}")
     assert proc.returncode == 0, proc.stderr
     line = next(x for x in proc.stdout.splitlines() if x.startswith("bench env took"))
     seconds = float(line.split()[3])
@@ -21,10 +21,11 @@ def test_quick_run_prints_its_time_and_writes_json(tmp_path):
 
 
 def test_bad_option_exits_2_with_one_line(tmp_path):
-    proc = run_cli("bench", "env", "--workers", "0", "--out", str(tmp_path))
+    proc = run_cli("bench", "env", "workers=0", f"out={tmp_path}")
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
-    assert proc.stderr.strip().splitlines() == ["error: --workers 0: must be >= 1"]
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: workers = 0 is outside the allowed")
 
 
 def _in_process(capsys, *argv: str) -> tuple[int, str, str]:
@@ -40,15 +41,18 @@ def _in_process(capsys, *argv: str) -> tuple[int, str, str]:
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
-        (["--envs", "0"], "--envs"),
-        (["--steps", "0"], "--steps"),
-        (["--device", "nope"], "--device"),
-        (["--peer-envs", "0"], "--peer-envs"),
-        (["--parallel-envs", "1", "--workers", "2"], "--parallel-envs"),
+        (["envs=[0]"], "envs[0] = 0"),
+        (["steps=0"], "steps = 0"),
+        (["device=nope"], "device = 'nope'"),
+        (["peer_envs=0"], "peer_envs = 0"),
+        (["parallel_envs=[1]", "workers=2"], "parallel_envs = [1]"),
+        (["compile=maybe"], "compile = 'maybe'"),
+        (["--steps", "2"], "'--steps'"),
+        (["no_such_key=1"], "unknown field(s) ['no_such_key']"),
     ],
 )
 def test_bad_options_are_one_line_exit_2(args, needle, tmp_path, capsys):
-    code, _, err = _in_process(capsys, "env", *args, "--out", str(tmp_path))
+    code, _, err = _in_process(capsys, "env", *args, f"out={tmp_path}")
     assert code == 2
     assert err.strip().startswith(f"error: {needle}") and len(err.strip().splitlines()) == 1
     assert not list(tmp_path.iterdir())  # rejected before any work
@@ -57,21 +61,20 @@ def test_bad_options_are_one_line_exit_2(args, needle, tmp_path, capsys):
 def test_every_option_has_help(capsys):
     code, stdout, _ = _in_process(capsys, "env", "--help")
     assert code == 0
-    for opt in (
-        "--quick", "--envs", "--workers", "--parallel-envs", "--steps", "--compile",
-        "--scaling", "--eager-max-envs", "--plot", "--peers", "--peer-envs",
+    for key in (
+        "quick", "envs", "workers", "parallel_envs", "steps", "compile", "paper", "collector",
+        "scaling", "eager_max_envs", "plot", "peers", "peer_envs", "device", "threads", "seed",
+        "out",
     ):  # fmt: skip
-        line = next(x for x in stdout.splitlines() if x.strip().startswith(opt))
-        assert len(line.strip()) > len(opt) + 8, opt  # followed by a description
+        line = next(x for x in stdout.splitlines() if x.strip().startswith(key + " "))
+        assert len(line.strip()) > len(key) + 8, key  # followed by a description
 
 
 def test_scaling_quick_writes_table_json_and_a_three_panel_png(tmp_path):
     import cv2
 
     png = tmp_path / "scaling.png"
-    proc = run_cli(
-        "bench", "env", "--scaling", "--quick", "--out", str(tmp_path), "--plot", str(png)
-    )
+    proc = run_cli("bench", "env", "scaling=true", "quick=true", f"out={tmp_path}", f"plot={png}")
     assert proc.returncode == 0, proc.stderr
     assert "env-steps/s scaling" in proc.stdout
     record = json.loads(next(tmp_path.glob("env-scaling-*.json")).read_text())
@@ -87,17 +90,29 @@ def test_scaling_quick_writes_table_json_and_a_three_panel_png(tmp_path):
 
 def test_peers_without_vmas_is_one_line_exit_2(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "vmas", None)  # as if not installed
-    code, _, err = _in_process(capsys, "env", "--peers", "--out", str(tmp_path))
+    code, _, err = _in_process(capsys, "env", "peers=true", f"out={tmp_path}")
     assert code == 2
-    assert err.strip().splitlines() == ["error: --peers needs VMAS: pip install 'truckrl[bench]'"]
+    assert err.strip().splitlines() == [
+        "error: peers=true needs VMAS: pip install 'truckrl[bench]'"
+    ]
     assert not list(tmp_path.glob("*.json"))
 
 
 def test_peers_quick_side_by_side(tmp_path):
     pytest.importorskip("vmas")
-    proc = run_cli("bench", "env", "--peers", "--quick", "--out", str(tmp_path))
+    proc = run_cli("bench", "env", "peers=true", "quick=true", f"out={tmp_path}")
     assert proc.returncode == 0, proc.stderr
     record = json.loads(next(tmp_path.glob("env-peers-*.json")).read_text())
     sims = [r["simulator"] for r in record["rows"]]
     assert sims[0].startswith("VMAS") and "TruckEnv" in sims
     assert record["rows"][0]["x VMAS"] == 1.0 and all(r["steps/s"] > 0 for r in record["rows"])
+
+
+def test_benchmark_names_are_checked_and_listed(capsys):
+    code, _, err = _in_process(capsys, "nope")
+    assert code == 2 and err.strip().startswith("error: benchmark 'nope' is not one of")
+    from truckrl.bench.__main__ import main
+
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert all(f"  {name} " in out for name in ("env", "lidar", "train"))

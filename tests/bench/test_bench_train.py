@@ -21,13 +21,13 @@ TINY = [
 
 def test_tiny_run_writes_the_parts_of_each_iteration(tmp_path, capsys):
     out = tmp_path / "record.json"
-    argv = ["train", *TINY[:2], *(f"--override={o}" for o in TINY[2:])]
-    main([*argv, "--iterations", "2", "--warmup", "0", "--profile", "3", "--output", str(out)])
+    main(["train", *TINY, "iterations=2", "warmup=0", "profile=3", f"out={out}"])
     stdout = capsys.readouterr().out
     assert "frames/s" in stdout and "bench train took" in stdout
     record = json.loads(out.read_text())
     assert record["benchmark"] == "train"
     assert record["config"]["frames_per_batch"] == 64 and record["config"]["env_compile"] is False
+    assert record["args"]["iterations"] == 2 and record["config"]["overrides"] == TINY
     assert record["summary"]["torch_threads"] >= 1
     assert len(record["profile"]) == 3 and record["profile"][0]["self_cpu_ms"] > 0
     assert [r["iteration"] for r in record["rows"]] == [1, 2, "profiled"]
@@ -39,15 +39,33 @@ def test_tiny_run_writes_the_parts_of_each_iteration(tmp_path, capsys):
         assert sum(r[p] for p in PARTS) <= r["total_s"] * (1 + 1e-9)
         assert r["frames/s"] == pytest.approx(64 / r["total_s"])
         assert r["loss_forward_s"] > 0 and r["backward_s"] > 0 and r["collect_s"] > 0
+        assert r["log_s"] > 0  # log.interval=1: the real iteration writes its scalars
+
+
+def test_the_timed_iteration_is_the_trainers(tmp_path, capsys, monkeypatch):
+    """What is timed is :meth:`Trainer.iterate`, the training loop's own step."""
+    from truckrl.rl.trainer import Trainer
+
+    calls = []
+    original = Trainer.iterate
+
+    def counted(self, timings=None):
+        calls.append(timings is not None)
+        return original(self, timings)
+
+    monkeypatch.setattr(Trainer, "iterate", counted)
+    main(["train", *TINY, "iterations=2", "warmup=1", f"out={tmp_path}"])
+    capsys.readouterr()
+    assert calls == [True, True, True]
+    assert len(list(tmp_path.glob("train-*.json"))) == 1  # out= a folder: a stamped name in it
 
 
 def test_the_cloning_term_is_timed_on_stand_in_samples(tmp_path, capsys):
-    """``demos.bc_coeff > 0`` (experiment=demos): the update runs the cloning term, on the first
-    batch's observations and actions, and the record says so; without it there is none."""
+    """``demos.bc_coeff > 0`` (experiment=demos): the update runs the cloning term, on stand-in
+    observations and actions, and the record says so; without it there is none."""
     for coeff in (1.0, 0.0):
         out = tmp_path / f"bc{coeff}.json"
-        argv = ["train", *TINY, f"demos.bc_coeff={coeff}", "--iterations", "1"]
-        main([*argv, "--warmup", "0", "--output", str(out)])
+        main(["train", *TINY, f"demos.bc_coeff={coeff}", "iterations=1", "warmup=0", f"out={out}"])
         record = json.loads(out.read_text())
         assert record["config"]["bc_coeff"] == coeff
         assert ("loss_bc" in record["rows"][0]) == (coeff > 0)
@@ -58,12 +76,14 @@ def test_the_cloning_term_is_timed_on_stand_in_samples(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--iterations", "0"], "error: --iterations must be >= 1 (got 0)"),
-        (["--warmup", "-1"], "error: --warmup must be >= 0 (got -1)"),
-        (["--threads", "0"], "error: --threads must be >= 1 (got 0)"),
-        (["--profile", "-1"], "error: --profile must be >= 0 (got -1)"),
-        (["nokey"], "error: override 'nokey': write KEY=VALUE"),
-        (["--override", "ppo.num_epochs=0"], "error: ppo.num_epochs"),
+        (["iterations=0"], "error: iterations = 0 is outside the allowed range [1"),
+        (["warmup=-1"], "error: warmup = -1 is outside the allowed range [0"),
+        (["threads=0"], "error: threads = 0 is outside the allowed range [1"),
+        (["profile=-1"], "error: profile = -1 is outside the allowed range [0"),
+        (["quick=maybe"], "error: quick = 'maybe' must be true or false"),
+        (["nokey"], "error: 'nokey': arguments are KEY=VALUE"),
+        (["--iterations", "2"], "error: '--iterations': arguments are KEY=VALUE"),
+        (["ppo.num_epochs=0"], "error: ppo.num_epochs"),
         (["collector.no_such_field=1"], "error: "),
     ],
 )
@@ -75,19 +95,13 @@ def test_bad_options_are_one_line_exit_2(args, message, capsys):
     assert err.startswith(message) and len(err.splitlines()) == 1, err
 
 
-def test_every_option_has_help(capsys):
+def test_every_key_has_help_and_the_overrides_are_explained(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["train", "--help"])
     assert exc.value.code == 0
-    lines = capsys.readouterr().out.splitlines()
-    for opt in (
-        "--override",
-        "--iterations",
-        "--warmup",
-        "--quick",
-        "--threads",
-        "--output",
-        "--profile",
-    ):
-        line = next(x for x in lines if x.strip().startswith(opt))
-        assert len(line.strip()) > len(opt) + 8, opt  # followed by a description
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    for key in ("iterations", "warmup", "quick", "threads", "out", "profile"):
+        line = next(x for x in lines if x.strip().startswith(key + " "))
+        assert len(line.strip()) > len(key) + 8, key  # followed by a description
+    assert "Hydra override" in out

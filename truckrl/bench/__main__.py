@@ -1,12 +1,13 @@
-"""``python -m truckrl.bench <benchmark> [options]``: dispatch to one benchmark module.
+"""``python -m truckrl.bench <benchmark> [KEY=VALUE ...]``: dispatch to one benchmark module.
 
 A benchmark is a module under ``truckrl.bench`` listed in :data:`BENCHMARKS`, exposing
-``add_arguments(parser)`` and ``run(args)``; its docstring's first line is its help text.
+``parse(argv)`` (``KEY=VALUE`` arguments into its options, :func:`truckrl.cli.key_value_config`;
+bad input is one line, exit 2, before any work) and ``run(options)``; its docstring's first line
+is its one-line description. ``python -m truckrl.bench <benchmark> --help`` lists its keys.
 """
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import sys
 from types import ModuleType
@@ -17,6 +18,7 @@ BENCHMARKS: dict[str, str] = {
     "env": "truckrl.bench.env",
     "train": "truckrl.bench.train",
 }
+PROG = "python -m truckrl.bench"
 
 
 def _available() -> dict[str, ModuleType]:
@@ -30,20 +32,32 @@ def _available() -> dict[str, ModuleType]:
     return found
 
 
-def main(argv: list[str] | None = None) -> int:
-    modules = _available()
-    parser = argparse.ArgumentParser(
-        prog="python -m truckrl.bench",
-        description="Throughput benchmarks: print a table, write JSON to outputs/bench/.",
-    )
-    sub = parser.add_subparsers(dest="benchmark", required=True, metavar="BENCHMARK")
+def usage(modules: dict[str, ModuleType]) -> str:
+    """The benchmarks, one a line, with their descriptions."""
+    lines = [f"usage: {PROG} BENCHMARK [KEY=VALUE ...]  (BENCHMARK --help lists its keys)", ""]
+    lines.append("Throughput benchmarks: print a table, write JSON to outputs/bench/.")
+    width = max(len(n) for n in modules)
     for name, module in modules.items():
         doc = (module.__doc__ or name).strip().splitlines()[0]
-        p = sub.add_parser(name, help=doc, description=module.__doc__)
-        module.add_arguments(p)
-        p.set_defaults(_run=module.run)
-    args = parser.parse_args(argv)
-    args._run(args)
+        lines.append(f"  {name:<{width}}  {doc}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from truckrl.cli import fail
+
+    argv = sys.argv[1:] if argv is None else list(argv)
+    modules = _available()
+    if not argv:
+        fail(f"give a BENCHMARK, one of {list(modules)} (see {PROG} --help)")
+    if argv[0] in ("-h", "--help"):
+        print(usage(modules))
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in modules:
+        fail(f"benchmark {name!r} is not one of {list(modules)} (see {PROG} --help)")
+    module = modules[name]
+    module.run(module.parse(rest))
     return 0
 
 

@@ -7,32 +7,33 @@ Measured with a uniformly random policy (``action_spec.rand()``), resets include
 * ``ParallelEnv`` with W worker processes, each a batched ``TruckEnv`` of N / W trucks;
 * the paper's layout: 24 worker processes each stepping one truck (``ParallelEnv(24, n=1)``),
   measured in the same run so the ratio is side by side;
-* optionally (``--collector``) ``Collector`` frames/s with the real two-branch policy.
+* optionally (``collector=true``) ``Collector`` frames/s with the real two-branch policy.
 
 Two other sections replace those rows when asked for (both may be given):
 
-* ``--scaling``: env-steps/s against the number of trucks N (1 ... 65,536), LiDAR beams
+* ``scaling=true``: env-steps/s against the number of trucks N (1 ... 65,536), LiDAR beams
   (16 ... 256 at N = 1,024) and obstacle slots of the scene (``env.task.scene.max_obstacles``:
   0, 4, 16, 64, i.e. 8 ... 264 segment slots, at N = 1,024), compiled and (up to
-  ``--eager-max-envs``) eager; a table, the JSON record and a PNG of three log-log panels
-  (``--plot``, default ``docs/env_scaling.png``).
-* ``--peers``: VMAS (optional ``bench`` extra) with the closest scenario it can express
+  ``eager_max_envs``) eager; a table, the JSON record and a PNG of three log-log panels
+  (``plot``, default ``docs/env_scaling.png``).
+* ``peers=true``: VMAS (optional ``bench`` extra) with the closest scenario it can express
   (:mod:`truckrl.bench.peers`) beside TruckEnv eager and compiled at the same N, measured in
   the same run, with the ratios.
 """
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import functools
-import sys
 import time
+from dataclasses import dataclass
 
 import torch
 from torchrl.envs import EnvBase, ParallelEnv
 
 from truckrl.bench import peers
-from truckrl.bench.report import draw_loglog_panels, print_table, write_json
+from truckrl.bench.report import DEFAULT_OUT_DIR, draw_loglog_panels, print_table, write_json
+from truckrl.config.fields import param, validate
 from truckrl.env import TruckEnv
 from truckrl.tasks import NUM_FEATURES
 
@@ -41,9 +42,11 @@ TARGET_RATIO_VS_PAPER = 30.0  # best config >= 30x the paper layout in the same 
 PAPER_WORKERS = 24  # paper: 24 single-truck worker processes
 
 
-QUICK = {"envs": [1, 256], "parallel_envs": [], "steps": 10, "warmup": 2, "compile": "off"}
+#: What ``quick=true`` sets, unless given.
+QUICK = {"envs": (1, 256), "parallel_envs": (), "steps": 10, "warmup": 2, "compile": "off"}
+QUICK |= {"paper": False}
 
-#: Sweeps of ``--scaling`` (full, ``--quick``): trucks N, beams R at N_ref, obstacle slots at N_ref.
+#: Sweeps of ``scaling=true`` (full, ``quick=true``): trucks N, beams R at N_ref, obstacle slots at N_ref.
 SCALING = {
     "envs": [1, 16, 256, 1024, 4096, 16384, 65536],
     "beams": [16, 32, 64, 128, 256],
@@ -53,87 +56,73 @@ SCALING = {
 SCALING_QUICK = {"envs": [1, 16, 64], "beams": [16, 32], "obstacles": [0, 4], "ref_envs": 16}
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    parser.add_argument(
-        "--quick", action="store_true",
-        help="a short run (under ~15 s): eager only, N = 1 and 256, no ParallelEnv or paper rows",
+@dataclass
+class EnvBenchConfig:
+    """``python -m truckrl.bench env``'s keys."""
+
+    quick: bool = param(
+        False, doc="a short run: eager only, N = 1 and 256, no ParallelEnv or paper rows "
+        "(keys given still apply)",
     )  # fmt: skip
-    parser.add_argument(
-        "--envs", type=int, nargs="+", default=[1, 24, 256, 1024, 4096],
-        help="trucks N of the batched TruckEnv rows (default: 1 24 256 1024 4096)",
-    )  # fmt: skip
-    parser.add_argument("--workers", type=int, default=2, help="W of the ParallelEnv rows (>= 1)")
-    parser.add_argument(
-        "--parallel-envs", type=int, nargs="*", default=[1024, 4096],
-        help="total trucks of the ParallelEnv rows, split over --workers (none: skip those rows)",
-    )  # fmt: skip
-    parser.add_argument("--steps", type=int, default=50, help="timed steps per measurement")
-    parser.add_argument(
-        "--warmup", type=int, default=5, help="untimed steps first (absorb compile)"
+    envs: tuple[int, ...] = param(
+        (1, 24, 256, 1024, 4096), lo=1, hi=1e8, unit="trucks", doc="N of the batched TruckEnv rows"
     )
-    parser.add_argument(
-        "--compile", choices=["both", "on", "off"], default="both",
-        help="eager (off), torch.compile'd (on) or both rows",
+    workers: int = param(2, lo=1, hi=1024, unit="processes", doc="W of the ParallelEnv rows")
+    parallel_envs: tuple[int, ...] = param(
+        (1024, 4096), lo=1, hi=1e8, min_len=0, unit="trucks",
+        doc="total trucks of the ParallelEnv rows, split over workers ([]: no such rows)",
     )  # fmt: skip
-    parser.add_argument("--no-paper", action="store_true", help="skip the 24-process paper layout")
-    parser.add_argument(
-        "--collector", action="store_true", help="also Collector frames/s with the real policy"
+    steps: int = param(50, lo=1, hi=1e7, unit="steps", doc="timed steps per measurement")
+    warmup: int = param(5, lo=0, hi=1e7, unit="steps", doc="untimed steps first (absorb compile)")
+    compile: str = param(
+        "both", choices=("both", "on", "off"), doc="eager (off), torch.compile'd (on) or both rows"
     )
-    parser.add_argument(
-        "--scaling", action="store_true",
-        help="instead of the rows above: steps/s against N, beams and obstacles; table, JSON, PNG",
-    )  # fmt: skip
-    parser.add_argument(
-        "--eager-max-envs", type=int, default=4096,
-        help="--scaling: largest N also measured eager (default 4096)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--plot", default="docs/env_scaling.png", help="--scaling: PNG path (three log-log panels)"
+    paper: bool = param(True, doc="the 24-process paper layout row")
+    collector: bool = param(False, doc="also Collector frames/s with the real policy")
+    scaling: bool = param(
+        False, doc="instead of the rows above: steps/s against N, beams and obstacles; PNG too"
     )
-    parser.add_argument(
-        "--peers", action="store_true",
-        help="instead of the rows above: VMAS beside TruckEnv at --peer-envs (needs the bench extra)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--peer-envs", type=int, default=1024, help="--peers: N of the side-by-side rows"
+    eager_max_envs: int = param(
+        4096, lo=1, hi=1e8, unit="trucks", doc="scaling: largest N also measured eager"
     )
-    parser.add_argument("--device", default="cpu", help="torch device of the batched rows")
-    parser.add_argument("--threads", type=int, help="torch threads in the main process")
-    parser.add_argument("--seed", type=int, default=0, help="scene seed")
-    parser.add_argument("--out", default="outputs/bench", help="folder for the JSON record")
+    plot: str = param("docs/env_scaling.png", doc="scaling: PNG path (three log-log panels)")
+    peers: bool = param(
+        False, doc="instead of the rows above: VMAS beside TruckEnv (needs the bench extra)"
+    )
+    peer_envs: int = param(1024, lo=1, hi=1e8, unit="trucks", doc="peers: N of the rows")
+    device: str = param("cpu", doc="torch device of the batched rows (cpu, cuda)")
+    threads: int | None = param(
+        None, lo=1, hi=4096, doc="torch threads in the main process (null: torch's choice)"
+    )
+    seed: int = param(0, lo=0, hi=2**31 - 1, doc="scene seed")
+    out: str = param(str(DEFAULT_OUT_DIR), doc="JSON record: a folder, or a .json path")
+
+    def __post_init__(self) -> None:
+        validate(self)
 
 
-def check_args(args: argparse.Namespace) -> None:
-    """Apply ``--quick`` and reject bad values with one line (SystemExit 2) before any work."""
+def parse(argv: list[str]) -> EnvBenchConfig:
+    """``KEY=VALUE`` arguments into :class:`EnvBenchConfig`, ``quick`` applied; a bad value is
+    one line, exit 2, before any work."""
+    from truckrl.cli import fail, key_value_config
+
+    args = key_value_config(EnvBenchConfig, argv, "python -m truckrl.bench env", __doc__)
     if args.quick:
+        given = {a.partition("=")[0] for a in argv}
         for k, v in QUICK.items():
-            setattr(args, k, v)
-        args.no_paper = True
-    bad = []
-    if any(n < 1 for n in args.envs):
-        bad.append(f"--envs {args.envs}: every N must be >= 1")
-    if args.workers < 1:
-        bad.append(f"--workers {args.workers}: must be >= 1")
+            if k not in given:
+                setattr(args, k, v)
     if any(n < args.workers for n in args.parallel_envs):
-        bad.append(f"--parallel-envs {args.parallel_envs}: each must be >= --workers")
-    if args.steps < 1:
-        bad.append(f"--steps {args.steps}: must be >= 1")
-    if args.warmup < 0:
-        bad.append(f"--warmup {args.warmup}: must be >= 0")
-    if args.threads is not None and args.threads < 1:
-        bad.append(f"--threads {args.threads}: must be >= 1")
+        fail(
+            f"parallel_envs = {list(args.parallel_envs)}: each must be >= workers ({args.workers})"
+        )
     try:
         torch.device(args.device)
     except (RuntimeError, TypeError):
-        bad.append(f"--device {args.device!r}: not a torch device")
-    if args.peer_envs < 1:
-        bad.append(f"--peer-envs {args.peer_envs}: must be >= 1")
+        fail(f"device = {args.device!r}: not a torch device (cpu, cuda, cuda:1)")
     if args.peers and not peers.vmas_available():
-        bad.append(f"--peers needs VMAS: {peers.INSTALL_HINT}")
-    if bad:
-        print(f"error: {bad[0]}", file=sys.stderr)
-        raise SystemExit(2)
+        fail(f"peers=true needs VMAS: {peers.INSTALL_HINT}")
+    return args
 
 
 def _make_env(
@@ -163,8 +152,7 @@ def steps_per_second(env: EnvBase, steps: int, warmup: int) -> tuple[float, floa
     return env.batch_size.numel() * steps / (time.perf_counter() - t0), warm
 
 
-def run(args: argparse.Namespace) -> dict:
-    check_args(args)
+def run(args: EnvBenchConfig) -> dict:
     t_start = time.perf_counter()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -175,7 +163,7 @@ def run(args: argparse.Namespace) -> dict:
         if args.peers:
             summary["peers"] = run_peers(args)
         summary["wall_s"] = time.perf_counter() - t_start
-        print(f"bench env took {summary['wall_s']:.1f} s" + (" (--quick)" if args.quick else ""))
+        print(f"bench env took {summary['wall_s']:.1f} s" + (" (quick)" if args.quick else ""))
         return summary
     modes = {"both": [False, True], "on": [True], "off": [False]}[args.compile]
     rows = []
@@ -199,7 +187,7 @@ def run(args: argparse.Namespace) -> dict:
         )
 
     paper_sps = None
-    if not args.no_paper:
+    if args.paper:
         make = functools.partial(_make_env, 1, False, "cpu", args.seed)
         penv = ParallelEnv(PAPER_WORKERS, make, mp_start_method="spawn")
         try:
@@ -247,15 +235,15 @@ def run(args: argparse.Namespace) -> dict:
         + (f" = {summary['best_x_paper']:.1f}x the paper layout" if paper_sps else "")
     )
     summary["wall_s"] = time.perf_counter() - t_start
-    print(f"bench env took {summary['wall_s']:.1f} s" + (" (--quick)" if args.quick else ""))
-    args_json = {k: v for k, v in vars(args).items() if not k.startswith("_")}
+    print(f"bench env took {summary['wall_s']:.1f} s" + (" (quick)" if args.quick else ""))
+    args_json = dataclasses.asdict(args)
     write_json(
         "env", {"rows": rows, "summary": summary, "table": table, "args": args_json}, args.out
     )
     return summary
 
 
-def _collector_rows(args: argparse.Namespace, compiled: bool) -> list[dict]:
+def _collector_rows(args: EnvBenchConfig, compiled: bool) -> list[dict]:
     """Collector frames/s with the real two-branch policy (random weights)."""
     from torchrl.collectors import Collector
 
@@ -290,17 +278,17 @@ def _collector_rows(args: argparse.Namespace, compiled: bool) -> list[dict]:
     return rows
 
 
-def _modes(args: argparse.Namespace) -> list[bool]:
+def _modes(args: EnvBenchConfig) -> list[bool]:
     return {"both": [True, False], "on": [True], "off": [False]}[args.compile]
 
 
-def _scaled_steps(args: argparse.Namespace, n: int) -> int:
-    """Timed steps at N trucks: about ``--steps`` x 1,024 trucks of work, 3 .. 4 x ``--steps``."""
+def _scaled_steps(args: EnvBenchConfig, n: int) -> int:
+    """Timed steps at N trucks: about ``steps`` x 1,024 trucks of work, 3 .. 4 x ``steps``."""
     return int(min(4 * args.steps, max(3, round(args.steps * 1024 / n))))
 
 
-def run_scaling(args: argparse.Namespace) -> dict:
-    """The ``--scaling`` sweep: rows, table, JSON and PNG; returns the JSON payload."""
+def run_scaling(args: EnvBenchConfig) -> dict:
+    """The ``scaling=true`` sweep: rows, table, JSON and PNG; returns the JSON payload."""
     sweep = SCALING_QUICK if args.quick else SCALING
     ref = sweep["ref_envs"]
     rows = []
@@ -336,7 +324,7 @@ def run_scaling(args: argparse.Namespace) -> dict:
         for r in sweep["beams"]:
             measure("beams", r, ref, compiled, {"lidar": {"num_beams": r}})
         for k in sweep["obstacles"]:
-            scene = {"task": {"name": "intersection", "scene": {"max_obstacles": k}}}
+            scene = {"task": {"scene": {"max_obstacles": k}}}  # the default task's scene
             measure("obstacles", k, ref, compiled, scene)
     table = print_table("TruckEnv env-steps/s scaling (random policy, resets included)", rows)
 
@@ -369,8 +357,8 @@ def run_scaling(args: argparse.Namespace) -> dict:
     return payload
 
 
-def run_peers(args: argparse.Namespace) -> dict:
-    """``--peers``: VMAS and TruckEnv (eager, compiled) at the same N in this run."""
+def run_peers(args: EnvBenchConfig) -> dict:
+    """``peers=true``: VMAS and TruckEnv (eager, compiled) at the same N in this run."""
     n = 16 if args.quick else args.peer_envs
     steps = _scaled_steps(args, n)
     warmup = min(args.warmup, steps)

@@ -7,23 +7,24 @@ order is warm, as in a simulation step. Reported:
 * time per scan for each implementation over R x E (beams x segments);
 * the scaling exponents b, c of a least-squares fit ``t = a * R^b * E^c`` (log-log), and the
   exponent of the sweep in ``R + E``;
-* the batched scan's scans/s over N envs (one scan = one env's R beams), per method;
-* the dense-vs-span comparison at the environment's sizes that sets ``LidarConfig.method``.
+* the batched scan's scans/s over N envs (one scan = one env's R beams), eager and compiled.
 """
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from truckrl.bench.report import print_table, time_call, write_json
+from truckrl.bench.report import DEFAULT_OUT_DIR, print_table, time_call, write_json
+from truckrl.config.fields import param, validate
 from truckrl.sim.compiled import compile_sim
 from truckrl.sim.geometry import rectangle_segments
-from truckrl.sim.lidar import METHODS, SweepLidar, beam_angles, lidar_oracle, lidar_scan
+from truckrl.sim.lidar import SweepLidar, beam_angles, lidar_oracle, lidar_scan
 
 MAX_RANGE = 50.0  # [m] paper: 50 m
 #: Rectangles live in this square [m] around the sensor's start, so all stay within range.
@@ -37,19 +38,44 @@ TARGETS = {
 }
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--quick", action="store_true", help="small grid and budgets (~20 s)")
-    parser.add_argument("--beams", type=int, nargs="+", help="R values (default 16 64 256 1024)")
-    parser.add_argument("--segments", type=int, nargs="+", help="E values (default 16 64 256 1024)")
-    parser.add_argument("--envs", type=int, nargs="+", help="N values (default 1 64 1024 4096)")
-    parser.add_argument("--budget", type=float, help="seconds of timed repeats per measurement")
-    parser.add_argument("--device", default="cpu", help="device of the batched scan (cpu, cuda)")
-    parser.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
-    parser.add_argument(
-        "--no-compile", action="store_true", help="skip the torch.compile'd batched scan"
+@dataclass
+class LidarBenchConfig:
+    """``python -m truckrl.bench lidar``'s keys (an empty list: the default grid)."""
+
+    quick: bool = param(False, doc="small grid and budgets")
+    beams: tuple[int, ...] = param(
+        (), lo=1, hi=4096, min_len=0, unit="beams", doc="R values ([]: 16 64 256 1024)"
     )
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default="outputs/bench", help="directory of the JSON record")
+    segments: tuple[int, ...] = param(
+        (), lo=1, hi=1e6, min_len=0, unit="segments", doc="E values ([]: 16 64 256 1024)"
+    )
+    envs: tuple[int, ...] = param(
+        (), lo=1, hi=1e8, min_len=0, unit="envs", doc="N values ([]: 1 64 1024 4096)"
+    )
+    budget: float | None = param(
+        None, lo=0.0, lo_open=True, hi=3600.0, unit="s",
+        doc="timed repeats per measurement (null: 0.4, quick 0.05)",
+    )  # fmt: skip
+    device: str = param("cpu", doc="device of the batched scan (cpu, cuda)")
+    threads: int | None = param(None, lo=1, hi=4096, doc="torch CPU threads (null: torch's choice)")
+    compile: bool = param(True, doc="also the torch.compile'd batched scan")
+    seed: int = param(0, lo=0, hi=2**31 - 1, doc="scene seed")
+    out: str = param(str(DEFAULT_OUT_DIR), doc="JSON record: a folder, or a .json path")
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+
+def parse(argv: list[str]) -> LidarBenchConfig:
+    """``KEY=VALUE`` arguments into :class:`LidarBenchConfig`; bad input: one line, exit 2."""
+    from truckrl.cli import fail, key_value_config
+
+    args = key_value_config(LidarBenchConfig, argv, "python -m truckrl.bench lidar", __doc__)
+    try:
+        torch.device(args.device)
+    except (RuntimeError, TypeError):
+        fail(f"device = {args.device!r}: not a torch device (cpu, cuda, cuda:1)")
+    return args
 
 
 def rectangle_scenes(n: int, num_segments: int, g: torch.Generator) -> torch.Tensor:
@@ -92,7 +118,7 @@ class _Drive:
 def _scan_fns(num_beams: int, seg: torch.Tensor, device: str) -> dict[str, Callable[[], object]]:
     """One-scene scan closures for each implementation, all on a slowly moving pose."""
     rel = beam_angles(num_beams)
-    drive = {k: _Drive() for k in ("oracle", "sweep", *METHODS)}
+    drive = {k: _Drive() for k in ("oracle", "sweep", "batched")}
     sweep = SweepLidar(rel, MAX_RANGE)
     seg_dev, rel_dev = seg.to(device), rel.to(device)
 
@@ -104,16 +130,13 @@ def _scan_fns(num_beams: int, seg: torch.Tensor, device: str) -> dict[str, Calla
         x, y, h = drive["sweep"].step()
         return sweep(torch.tensor([x, y]), h, seg, scene_id=0)
 
-    def batched(method):
-        def fn():
-            x, y, h = drive[method].step()
-            origin = torch.tensor([[x, y]], device=device)
-            heading = torch.tensor([h], device=device)
-            return lidar_scan(origin, heading, seg_dev[None], None, rel_dev, MAX_RANGE, method)
+    def batched():
+        x, y, h = drive["batched"].step()
+        origin = torch.tensor([[x, y]], device=device)
+        heading = torch.tensor([h], device=device)
+        return lidar_scan(origin, heading, seg_dev[None], None, rel_dev, MAX_RANGE)
 
-        return fn
-
-    return {"oracle": oracle, "sweep": swept, **{f"batched_{m}": batched(m) for m in METHODS}}
+    return {"oracle": oracle, "sweep": swept, "batched": batched}
 
 
 def _fit_exponents(rows: list[dict], key: str) -> dict[str, float]:
@@ -131,7 +154,7 @@ def _fit_exponents(rows: list[dict], key: str) -> dict[str, float]:
 
 # Long on purpose: the benchmark grid, its timing loops and its JSON record read top to
 # bottom; helpers would only move the loop variables around.
-def run(args: argparse.Namespace) -> dict:
+def run(args: LidarBenchConfig) -> dict:
     if args.threads:
         torch.set_num_threads(args.threads)
     quick = args.quick
@@ -141,7 +164,7 @@ def run(args: argparse.Namespace) -> dict:
     budget = args.budget or (0.05 if quick else 0.4)
     sync = torch.cuda.synchronize if args.device.startswith("cuda") else None
     g = torch.Generator().manual_seed(args.seed)
-    impls = ["oracle", "sweep", *(f"batched_{m}" for m in METHODS)]
+    impls = ["oracle", "sweep", "batched"]
 
     # Time per scan over R x E.
     grid = []
@@ -151,7 +174,7 @@ def run(args: argparse.Namespace) -> dict:
             fns = _scan_fns(num_r, seg, args.device)
             row: dict = {"R": num_r, "E": seg.shape[0]}
             for name in impls:
-                # the oracle at large R*E takes ~0.1 s per scan: a few repeats suffice
+                # the oracle is slow at large R*E: a few repeats suffice
                 cap = 3 if name == "oracle" and num_r * num_e >= 256 * 1024 else 200
                 row[f"{name}_ms"] = (
                     time_call(fns[name], budget, max_repeats=cap, sync=sync)["median_s"] * 1e3
@@ -173,21 +196,20 @@ def run(args: argparse.Namespace) -> dict:
         origin = ((torch.rand(n, 2, generator=g) - 0.5) * 4.0).to(args.device)
         heading = ((torch.rand(n, generator=g) - 0.5) * 2 * math.pi).to(args.device)
         row = {"N": n, "R": 16, "E": seg.shape[1]}
-        for m in METHODS:
 
-            def fn(m=m, seg=seg, origin=origin, heading=heading):
-                return lidar_scan(origin, heading, seg, None, rel.to(args.device), MAX_RANGE, m)
+        def fn(seg=seg, origin=origin, heading=heading):
+            return lidar_scan(origin, heading, seg, None, rel.to(args.device), MAX_RANGE)
 
-            t = time_call(fn, budget, sync=sync)["median_s"]
-            row[f"{m}_ms"] = t * 1e3
-            row[f"{m}_scans_per_s"] = n / t
-            row[f"{m}_vs_sweep"] = (n / t) * sweep_s
-        if not args.no_compile:
+        t = time_call(fn, budget, sync=sync)["median_s"]
+        row["batched_ms"] = t * 1e3
+        row["batched_scans_per_s"] = n / t
+        row["batched_vs_sweep"] = (n / t) * sweep_s
+        if args.compile:
             # the environment's path with env.compile=true: the dense scan fused by torch.compile
             compiled = compile_sim(lidar_scan, args.device)
 
             def fn(seg=seg, origin=origin, heading=heading, compiled=compiled):
-                return compiled(origin, heading, seg, None, rel.to(args.device), MAX_RANGE, "dense")
+                return compiled(origin, heading, seg, None, rel.to(args.device), MAX_RANGE)
 
             fn()  # compile outside the timing
             t = time_call(fn, budget, sync=sync)["median_s"]
@@ -197,28 +219,6 @@ def run(args: argparse.Namespace) -> dict:
         throughput.append(row)
     print(f"\nsweep (one scene, R = 16, E = 64): {1 / sweep_s:.0f} scans/s", flush=True)
     print_table(f"Batched scans/s over N envs (R = 16, E = 64, {args.device})", throughput)
-
-    # Which batched method for the environment: N x R x E at its sizes.
-    choice = []
-    for n in [x for x in envs if x >= 1024] or envs[-1:]:
-        for num_r in (16, 64):
-            for num_e in (40, 100):
-                seg = rectangle_scenes(n, num_e, g).to(args.device)
-                origin = ((torch.rand(n, 2, generator=g) - 0.5) * 4.0).to(args.device)
-                heading = ((torch.rand(n, generator=g) - 0.5) * 2 * math.pi).to(args.device)
-                rel_r = beam_angles(num_r).to(args.device)
-                row = {"N": n, "R": num_r, "E": seg.shape[1]}
-                for m in METHODS:
-
-                    def fn(m=m, seg=seg, origin=origin, heading=heading, rel_r=rel_r):
-                        return lidar_scan(origin, heading, seg, None, rel_r, MAX_RANGE, m)
-
-                    row[f"{m}_ms"] = time_call(fn, budget, sync=sync)["median_s"] * 1e3
-                row["faster"] = min(METHODS, key=lambda m, row=row: row[f"{m}_ms"])
-                choice.append(row)
-                if quick:
-                    break
-    print_table("Batched method at the environment's sizes [ms per call]", choice)
 
     # Targets.
     at256 = next((r for r in grid if r["R"] == 256 and r["E"] == 256), None)
@@ -259,13 +259,12 @@ def run(args: argparse.Namespace) -> dict:
     print_table("Targets", targets)
 
     result = {
-        "args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
+        "args": dataclasses.asdict(args),
         "max_range_m": MAX_RANGE,
         "per_scan": grid,
         "scaling": scaling,
         "sweep_scans_per_s_R16_E64": 1 / sweep_s,
         "throughput": throughput,
-        "method_choice": choice,
         "targets": targets,
     }
     write_json("lidar", result, args.out)

@@ -98,16 +98,12 @@ def machine_info() -> dict[str, Any]:
     }
 
 
-def write_json(
-    name: str,
-    payload: dict[str, Any],
-    out_dir: str | Path = DEFAULT_OUT_DIR,
-    path: str | Path | None = None,
-) -> Path:
-    """Write ``payload`` plus machine info to ``<out_dir>/<name>-<timestamp>.json`` (or to
-    ``path`` when given); return the path."""
+def write_json(name: str, payload: dict[str, Any], out: str | Path | None = None) -> Path:
+    """Write ``payload`` plus machine info to ``out`` when it names a ``.json`` file, else to
+    ``<out>/<name>-<timestamp>.json`` (``out`` None: :data:`DEFAULT_OUT_DIR`); return the path."""
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    path = Path(path) if path is not None else Path(out_dir) / f"{name}-{stamp}.json"
+    out = Path(out) if out is not None else DEFAULT_OUT_DIR
+    path = out if out.suffix == ".json" else out / f"{name}-{stamp}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     record = {"benchmark": name, "time": stamp, "machine": machine_info(), **payload}
     path.write_text(json.dumps(record, indent=2, default=str))

@@ -10,8 +10,8 @@ they hand to it:
 2. :class:`SweepLidar`: the paper's event-ordered angular sweep (Sec. "LiDAR Algorithms") on one
    scene, on the CPU, with the sorted event order kept between calls. Near ``O(R + E)``.
 3. :func:`lidar_scan`: the batched tensor version the environment calls for all N envs at once
-   (CPU or CUDA, no per-env loop, no host sync). ``"dense"`` tests every ray against every
-   segment; ``"span"`` tests each segment only against the beams inside its angular interval.
+   (CPU or CUDA, no per-env loop, no host sync): every ray against every segment, as tensor ops
+   that ``torch.compile`` fuses.
 
 Beam layout (:func:`beam_angles`): angles are relative to the sensor heading, counter-clockwise
 positive, ascending in ``[-pi, pi)``. For the full circle, beam ``k`` points at ``-pi + k * 2pi/R``:
@@ -24,7 +24,6 @@ spacing before beam 0 again, so the layout is uniform across the seam and beams 
 from __future__ import annotations
 
 import math
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,11 +39,10 @@ from truckrl.sim.geometry import (
     ray_tolerance,
     segments_to_local,
     unit_vectors,
-    wrap_angle,
 )
 
-#: Implementations of :func:`lidar_scan`.
-METHODS: tuple[str, ...] = ("dense", "span")
+#: Values of ``LidarConfig.method``: the one batched form (the field stays while callers pass it).
+METHODS: tuple[str, ...] = ("dense",)
 
 #: Angular padding [rad] added to both ends of a segment's interval before deciding which beams
 #: may hit it. Extra candidates cost a little work; a missing one costs a wrong range, so the
@@ -52,9 +50,6 @@ METHODS: tuple[str, ...] = ("dense", "span")
 #: On top of it comes twice the angle that ray_segment_distance's beam half-width subtends
 #: (:func:`~truckrl.sim.geometry.ray_tolerance`): a beam that close to a segment end touches it.
 _SWEEP_PAD = 1e-6
-_SPAN_PAD = 1e-4
-#: Largest padding [rad] the span form allows, so its fixed gather width stays bounded.
-_SPAN_PAD_MAX = 1e-2
 #: A sensor closer than this [m] to a segment may hit it from every direction at ~0 m.
 _ON_SEGMENT = 1e-9
 
@@ -65,9 +60,7 @@ class LidarConfig:
 
     ``num_beams``: the paper's 1-D CNN (4 channels after two stride-2 layers feeding a 64-wide
     layer, ~17.3k parameters) implies 16. ``fov = 2*pi`` is the full circle (paper: beams at -pi
-    and +pi are neighbours, circular padding in the CNN). ``method``: ``"dense"`` measured fastest
-    at the environment's sizes (R = 16..64, E ~ 40-100, N = 1024..4096 on CPU); see
-    ``python -m truckrl.bench lidar``.
+    and +pi are neighbours, circular padding in the CNN).
     """
 
     num_beams: int = param(
@@ -92,7 +85,7 @@ class LidarConfig:
         source="paper",
     )
     method: str = param(
-        "dense", choices=METHODS, unit="-", doc="batched implementation of lidar_scan"
+        "dense", choices=METHODS, unit="-", doc="batched implementation of lidar_scan (one)"
     )
 
     def __post_init__(self) -> None:
@@ -328,14 +321,9 @@ def lidar_scan(
         segments: ``[..., E, 4]`` world metres (padded to a common ``E``).
         mask: ``[..., E]`` validity (``False`` = padding) or ``None``.
         rel_angles: ``[R]`` beam directions relative to the heading [rad], ascending in
-            ``[-pi, pi)`` as :func:`beam_angles` makes them (the ``"span"`` form relies on it).
+            ``[-pi, pi)`` as :func:`beam_angles` makes them.
         max_range: [m].
-        method: ``"dense"`` (every ray x every segment) or ``"span"`` (each segment x the beams
-            inside its angular interval). Both give the oracle's ranges, except that ``"span"``
-            sees a segment the sensor lies on (within round-off) over one half-circle only.
-            ``"span"`` reads the beam layout once per ``rel_angles`` tensor to size its gather
-            (one host sync for a device tensor, then cached); under ``torch.compile`` it cannot,
-            and gathers all ``R`` beams per segment instead.
+        method: ``"dense"``, the one form (every ray x every segment; ``LidarConfig.method``).
 
     Returns:
         ``[..., R]`` first-hit distances [m], exactly ``max_range`` where nothing is hit.
@@ -345,14 +333,12 @@ def lidar_scan(
     # float32 subtraction of large world coordinates happens once per vertex, not per pair.
     ends = segments_to_local(segments, origin, heading)  # 4 x [..., E]
     rel = rel_angles.to(ends[0])
-    if method == "dense" and ends[0].shape[-1] == 0:
+    if ends[0].shape[-1] == 0:
         shape = (*ends[0].shape[:-1], rel.shape[-1])
         return torch.full(shape, float(max_range), dtype=rel.dtype, device=rel.device)
-    if method == "dense" and (torch.compiler.is_compiling() or ends[0].requires_grad):
+    if torch.compiler.is_compiling() or ends[0].requires_grad:
         return _fused_scan(ends, mask, rel, max_range)
     local = torch.stack(ends, -1)  # [..., E, 4]
-    if method == "span":
-        return _span_scan(local, mask, rel, max_range, _span_width(rel_angles))
     chunk = _dense_chunk(local, rel.shape[-1])
     if chunk is None:
         return _dense_scan(local, mask, rel, max_range)
@@ -440,73 +426,3 @@ def _dense_scan(local: Tensor, mask: Tensor | None, rel: Tensor, max_range: floa
         hit.logical_and_(mask.unsqueeze(-2))
     dist = t_near.clamp_min_(0.0).masked_fill_(~hit, math.inf)
     return dist.amin(-1).clamp_max(max_range)
-
-
-#: Gather widths of the span form by beam-angle tensor: ``id -> (weakref, version, width)``.
-_SPAN_WIDTHS: dict[int, tuple[weakref.ref, int, int]] = {}
-
-
-def _span_width(rel_angles: Tensor) -> int:
-    """Most beams of the layout ``rel_angles [R]`` inside one padded segment interval.
-
-    A segment's interval spans at most ``pi`` plus ``2 * _SPAN_PAD_MAX`` of padding; how many beams
-    that holds depends on their spacing (``2*pi / R`` for the full circle, ``fov / (R - 1)`` for
-    a partial field of view), so it is counted on the beam angles themselves, plus one for
-    round-off. The count is cached per tensor (and its version counter), so a device tensor costs
-    one host sync. Under ``torch.compile`` the values are unknown and every beam is gathered.
-    """
-    num = rel_angles.shape[-1]
-    if num <= 1 or torch.compiler.is_compiling():
-        return num
-    key = id(rel_angles)
-    version = None if rel_angles.is_inference() else rel_angles._version  # inference: no cache
-    cached = _SPAN_WIDTHS.get(key) if version is not None else None
-    if cached is not None and cached[0]() is rel_angles and cached[1] == version:
-        return cached[2]
-    a = np.sort(rel_angles.detach().to(torch.float64).cpu().numpy().reshape(-1))
-    ring = np.concatenate((a, a + 2.0 * math.pi))  # beams of the next turn, for wrapped intervals
-    window = math.pi + 2.0 * _SPAN_PAD_MAX
-    ends = np.searchsorted(ring, a + window * (1.0 + 1e-6) + 1e-6, side="right")
-    width = min(num, int((ends - np.arange(num)).max()) + 1)
-    if version is not None:
-        _SPAN_WIDTHS[key] = (
-            weakref.ref(rel_angles, lambda _, k=key: _SPAN_WIDTHS.pop(k, None)),
-            version,
-            width,
-        )
-    return width
-
-
-def _span_scan(
-    local: Tensor, mask: Tensor | None, rel: Tensor, max_range: float, width: int
-) -> Tensor:
-    """Span form of :func:`lidar_scan` on sensor-frame segments ``local [..., E, 4]``.
-
-    ``width`` (:func:`_span_width`) bounds the number of beams inside any segment's interval.
-    """
-    num_r = rel.shape[-1]
-    batch = local.shape[:-2]
-    x0, y0, x1, y1 = local.unbind(-1)
-    a0, a1 = torch.atan2(y0, x0), torch.atan2(y1, x1)
-    two_pi = 2.0 * math.pi
-    ccw = torch.remainder(a1 - a0, two_pi)
-    flip = ccw > math.pi
-    start = torch.where(flip, a1, a0)
-    span = torch.where(flip, two_pi - ccw, ccw)
-    pad = _SPAN_PAD + _beam_angle(torch.finfo(local.dtype).eps)  # <= _SPAN_PAD_MAX
-    lo = wrap_angle(start - pad)
-    width_ang = span + 2.0 * pad
-    # First beam at or after the interval start (wrapping past the last beam to beam 0), then a
-    # fixed-width run of following beams, each kept only if it lies inside the interval.
-    first = torch.searchsorted(rel.contiguous(), lo.contiguous())  # [..., E]
-    beam = (first.unsqueeze(-1) + torch.arange(width, device=rel.device)) % num_r  # [..., E, W]
-    inside = torch.remainder(rel[beam] - lo.unsqueeze(-1), two_pi) <= width_ang.unsqueeze(-1)
-    if mask is not None:
-        inside &= mask.unsqueeze(-1)
-    # ray_segment_distance on gathered pairs: each (segment, slot) is its own batch element.
-    zero = torch.zeros((), dtype=local.dtype, device=local.device).expand(2)
-    pair_seg = local.unsqueeze(-2).expand(*batch, -1, width, 4).unsqueeze(-2)  # [..., E, W, 1, 4]
-    d = ray_segment_distance(zero, rel[beam].unsqueeze(-1), pair_seg).squeeze(-1).squeeze(-1)
-    d = torch.where(inside, d, torch.full_like(d, math.inf)).clamp_max(max_range)
-    out = torch.full((*batch, num_r), float(max_range), dtype=local.dtype, device=local.device)
-    return out.scatter_reduce(-1, beam.flatten(-2), d.flatten(-2), reduce="amin")
