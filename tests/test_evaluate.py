@@ -14,15 +14,11 @@ from tests.conftest import run_cli
 from truckrl.config.fields import ConfigError
 from truckrl.config.schemas import EvaluateConfig
 from truckrl.evaluate import evaluate
-from truckrl.evaluation.categories import (
-    TRAILER_DIM,
-    episode_bins,
-    scene_info,
-    summarize_by_category,
-)
+from truckrl.evaluation.categories import summarize_by_category
 from truckrl.evaluation.rollout import evaluate_policy
 from truckrl.rl.checkpoint import CheckpointError
 from truckrl.sim.vehicle import sample_vehicle_params
+from truckrl.tasks.intersection.bins import TRAILER_DIM, episode_bins, scene_info
 from truckrl.tasks.intersection.scene import ROUTE_KEYS, generate_scenes
 
 MAX_STEPS = 40  # the tiny checkpoint's env.max_steps
