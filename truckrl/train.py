@@ -55,11 +55,14 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     a checkpoint.
     """
     # Heavy imports here, not at module level: `--help` and config errors answer before they load
+    from truckrl.cli import git_revision, seed_everything
     from truckrl.rl.session import StopSignals
     from truckrl.rl.trainer import Trainer
 
     stop = stop or StopSignals()
-    trainer = Trainer(tc, run_dir, state, parent, stop, init)
+    source = git_revision()  # once: checkpoints record the commit the session started from
+    trainer = Trainer(tc, run_dir, state, parent, stop, init, source)
+    seed_everything(tc.seed)
     trainer.setup()
     reason = None  # why the loop ended; None after an error (the last good checkpoint stays)
     try:

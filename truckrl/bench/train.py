@@ -167,6 +167,7 @@ def _compiles(tc: Any) -> str:
 def _bench_trainer(tc: Any, run_dir: Path) -> Any:
     """A :class:`~truckrl.rl.trainer.Trainer` whose demonstrations are stand-ins (imported here:
     ``--help`` answers before torchrl and the env load)."""
+    from truckrl.cli import seed_everything
     from truckrl.env import LIDAR_KEY, OBS_KEY
     from truckrl.rl.trainer import Trainer
 
@@ -177,7 +178,9 @@ def _bench_trainer(tc: Any, run_dir: Path) -> Any:
             td.set("action", self.env.action_spec.rand())
             return td.select(OBS_KEY, LIDAR_KEY, "action").reshape(-1).clone()
 
-    return BenchTrainer(tc, run_dir, sync_timings=True)
+    trainer = BenchTrainer(tc, run_dir, sync_timings=True)
+    seed_everything(tc.seed)
+    return trainer
 
 
 def _sync(device: torch.device) -> None:

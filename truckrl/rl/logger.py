@@ -1,15 +1,15 @@
 """TensorBoard output of a training run: scalars, the config, hyper-parameters and videos.
 
-This module sits beside the entry points (above ``agent``): it draws through the viewer's
-:class:`truckrl.viewer.runner.Runner`, and drawing reads states only, through :mod:`truckrl.viz`.
+Drawing reads states only (:mod:`truckrl.viz`): this module steps the env for a video and hands
+each snapshot to :func:`truckrl.viz.video.render_frame`, the viewer's own renderer.
 
 Events go to ``<run_dir>/tb``; the global step is the number of environment frames. A resumed
 run opens the same directory with ``purge_step`` = the checkpoint's frame count + 1, so TensorBoard
 drops whatever the killed run logged after its last checkpoint and the curves continue seamlessly.
 
 Videos: one deterministic episode (the policy's mean action, the same seeded scene every time)
-recorded through a :class:`~truckrl.viewer.runner.Runner` with a :class:`~truckrl.viewer.runner.PolicySource`,
-so each frame is exactly what ``python -m truckrl.play checkpoint=...`` shows: the whole scene
+drawn by the viewer's renderer, so each frame is exactly what ``python -m truckrl.play
+checkpoint=...`` shows: the whole scene
 with the start truck and the goal in view, the HUD panel and the outcome banner. The first video
 is recorded after the first iteration, then whenever ``log.video_interval`` iterations or
 :data:`VIDEO_EVERY_S` seconds have passed since the last one (:class:`VideoSchedule`).
@@ -34,13 +34,22 @@ from typing import Any
 
 import numpy as np
 import torch
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch.utils.tensorboard import SummaryWriter
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from truckrl.env import TruckEnv
-from truckrl.tasks import EnvConfig
-from truckrl.viewer.runner import PolicySource, Runner, ViewConfig
-from truckrl.viz.video import frame_strip, gif_bytes, write_mp4
+from truckrl.tasks import OUTCOMES, EnvConfig
+from truckrl.viz.config import ViewConfig
+from truckrl.viz.video import (
+    FrameState,
+    fixed_camera,
+    frame_strip,
+    gif_bytes,
+    render_frame,
+    write_mp4,
+)
 
 #: [s] wall-clock time after which the next video is due, whatever the iteration count.
 VIDEO_EVERY_S = 300.0
@@ -189,7 +198,9 @@ def record_episode(
     device: str | torch.device = "cpu",
     view: ViewConfig = ViewConfig(),  # noqa: B008 (frozen dataclass)
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One deterministic episode as the viewer shows it, up to its end or ``max_steps`` steps.
+    """One deterministic episode (the policy's mean action) as the viewer shows it, up to its end
+    or ``max_steps`` steps: this function steps the env, :func:`~truckrl.viz.video.render_frame`
+    draws each snapshot.
 
     Returns:
         ``(frames [F, H, W + panel, 3], views [F, H, W, 3])`` uint8 RGB, ``F <= max_steps + 1``
@@ -200,11 +211,32 @@ def record_episode(
     env = TruckEnv(num_envs=1, device=device, config=env_cfg, seed=seed)
     try:
         env.set_difficulty(difficulty)
-        runner = Runner(env, {"policy": PolicySource(actor)}, "policy", view)
-        frames, views = [runner.frame], [runner.view_image]
-        while len(frames) <= max_steps and runner.step():
-            frames.append(runner.frame)
-            views.append(runner.view_image)
+        td = env.reset()
+        camera = fixed_camera(env.get_state(), view)
+        keys = ("reward", *env.task.reward_keys)
+        shot = {"rewards": {}, "last_action": None, "episode_return": 0.0, "outcome": None}
+
+        def render(td: TensorDictBase) -> tuple[np.ndarray, np.ndarray]:
+            fs = FrameState(
+                state=env.get_state()[0], ranges=td["lidar"][0] * env_cfg.lidar.max_range,
+                task=env.task, config=env.config, difficulty=env.get_difficulty(),
+                tolerance=tuple(float(x[0]) for x in env.tolerances()), camera=camera,
+                episodes_done=int(shot["outcome"] is not None), **shot,
+            )  # fmt: skip
+            return render_frame(fs, view)
+
+        shown = [render(td)]
+        while len(shown) <= max_steps and shot["outcome"] is None:
+            obs = td.select("observation", "lidar")
+            with set_exploration_type(ExplorationType.DETERMINISTIC):
+                action = actor(obs)["action"]
+            td = env.step(obs.set("action", action))["next"]
+            shot["episode_return"] += float(td["reward"])
+            shot["rewards"] = {k: float(td[k]) for k in keys}
+            shot["last_action"] = action.reshape(-1).tolist()
+            if bool(td["done"]):
+                shot["outcome"] = next((o.label for o in OUTCOMES if bool(td[o.flag])), "DONE")
+            shown.append(render(td))
     finally:
         env.close()
-    return np.stack(frames), np.stack(views)
+    return np.stack([f for _, f in shown]), np.stack([v for v, _ in shown])

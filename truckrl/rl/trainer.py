@@ -24,7 +24,6 @@ from typing import Any
 
 import yaml
 
-from truckrl.cli import git_revision, seed_everything
 from truckrl.config.fields import ConfigError
 from truckrl.evaluation.heldout import heldout_due, heldout_scalars
 from truckrl.rl import checkpoint as ckpt
@@ -59,13 +58,19 @@ class Trainer:
         stop: installed :class:`~truckrl.rl.session.StopSignals` (default: none installed).
         init: a loaded checkpoint whose network weights start a new run (``tc.init``; ignored
             when resuming).
+        source: the source's git revision, recorded in every checkpoint (the entry point reads
+            it once per session).
         sync_timings: wait for the device at each span end, so each span holds its own kernels
             (the benchmark; training does not pay for it).
+
+    The caller seeds the global generators (``truckrl.cli.seed_everything(tc.seed)``) before
+    :meth:`setup`: the env, the network's init and the demonstrations draw from them.
     """
 
     def __init__(self, tc: Any, run_dir: Path, state: dict | None = None,
                  parent: dict | None = None, stop: StopSignals | None = None,
-                 init: dict | None = None, sync_timings: bool = False) -> None:  # fmt: skip
+                 init: dict | None = None, source: dict | None = None,
+                 sync_timings: bool = False) -> None:  # fmt: skip
         self.tc, self.run_dir, self.state, self.parent, self.init = tc, run_dir, state, parent, init
         self.stop = stop or StopSignals()
         self.sync_timings = sync_timings
@@ -73,14 +78,13 @@ class Trainer:
         self.session_start = time.monotonic()
         self.wall_at_start = self.counters.wall_time_s  # demonstrations count too
         self.cfg_yaml = yaml.safe_dump(asdict(tc), sort_keys=False)
-        self.source = git_revision()  # once: checkpoints record the commit the session started
+        self.source = source or {}
 
     # ------------------------------------------------------------------ setup
     def setup(self) -> None:
         """Build env, models, PPO, curriculum, collector and logger; a bad checkpoint or missing
         demonstrations raise their one-line errors after closing the env workers."""
         tc, state = self.tc, self.state
-        seed_everything(tc.seed)
 
         # Create environment
         c = tc.collector

@@ -9,8 +9,10 @@ from keyboard input, through the identical frame loop, renderer and safety clamp
 action clamp and non-finite guard apply to every source), the viewer commands (restart, new scene,
 pause, single step, difficulty, mode) and the rendered frame; :func:`run_loop` is the one loop
 that polls an input (a window, a key script, or nothing), steps, and shows/records frames.
-Training videos (:func:`truckrl.rl.logger.record_episode`) record through a :class:`Runner` with a
-:class:`PolicySource` too: one renderer for the viewer and the videos.
+Frames are drawn by :func:`truckrl.viz.video.render_frame` from a snapshot of the episode
+(:meth:`Runner.frame_state`); training videos (:func:`truckrl.rl.logger.record_episode`) roll out
+the env themselves and draw through the same function: one renderer for the viewer and the
+videos.
 
 In a window, a keyboard-driven episode waits for the first drive key (the episode clock and its
 step limit start then), and a finished episode keeps its outcome banner until a key is pressed or
@@ -19,11 +21,9 @@ step limit start then), and a finished episode keeps its outcome banner until a 
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import torch
@@ -34,10 +34,8 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from truckrl.config.fields import check_choice
 from truckrl.env import TruckEnv
 from truckrl.sim.control import ControlConfig, commanded
-from truckrl.sim.vehicle import truck_corners
-from truckrl.tasks import MAX_DIFFICULTY, OUTCOMES, shown_float
+from truckrl.tasks import MAX_DIFFICULTY, OUTCOMES
 from truckrl.viz.config import ViewConfig
-from truckrl.viz.draw import COLORS, draw_state
 from truckrl.viz.keyboard import (
     DRIVE_KEYS,
     Command,
@@ -45,13 +43,16 @@ from truckrl.viz.keyboard import (
     KeyInput,
     KeyMapper,
     command_for,
-    gear,
     key_help,
 )
-from truckrl.viz.panel import Line, with_banner, with_panel
-from truckrl.viz.video import frame_strip
-
-_OK, _BAD, _NOTE = COLORS["goal"], (255, 95, 95), COLORS["lidar"]
+from truckrl.viz.panel import Line
+from truckrl.viz.video import (
+    FrameState,
+    fixed_camera,
+    frame_strip,
+    hud_lines,
+    render_frame,
+)
 
 #: An action source: (current observation td ``[1]``, held drive keys) -> action ``[1, 2]``.
 ActionSource = Callable[[TensorDictBase, frozenset[str]], Tensor]
@@ -143,7 +144,6 @@ class RandomSource:
 
 
 # ---------------------------------------------------------------------------------- runner
-_OUTCOMES = tuple((o.flag, o.label, _OK if o.good else _BAD) for o in OUTCOMES)
 
 
 class Runner:
@@ -191,7 +191,7 @@ class Runner:
         """A new random scene (the env's next episode)."""
         td = self.env.reset()
         self._start = self.env.get_state()
-        self._camera = self._fixed_camera()
+        self._camera = fixed_camera(self._start, self.view)
         self._begin(td)
 
     def restart(self) -> None:
@@ -267,94 +267,48 @@ class Runner:
         self.episode_return += float(nxt["reward"])
         if bool(nxt["done"]):
             self.episodes_done += 1
-            self.outcome = next((name for k, name, _ in _OUTCOMES if bool(nxt[k])), "DONE")
+            self.outcome = next((o.label for o in OUTCOMES if bool(nxt[o.flag])), "DONE")
         self.render()
         return True
 
     # -------------------------------------------------------------- drawing
-    def _fixed_camera(self) -> dict[str, Any]:
-        """Centre and half extent [m] that show the whole start truck and the goal, with margin."""
-        s = self._start
-        tractor, trailer, _ = truck_corners(s["pose"], s["params"])
-        pts = torch.cat((tractor[0], trailer[0], s["goal"][0, None, :2])).cpu()
-        lo, hi = pts.min(0).values, pts.max(0).values
-        half = 0.5 * float((hi - lo).max()) + self.view.margin
-        return {"center": 0.5 * (lo + hi), "view_half_extent": max(self.view.half_extent, half)}
+    def frame_state(self, s: TensorDictBase | None = None) -> FrameState:
+        """The snapshot :func:`~truckrl.viz.video.render_frame` draws: the truck's state ``s``
+        (default: the env's now) and this episode's bookkeeping."""
+        env = self.env
+        s = env.get_state()[0] if s is None else s
+        keys = ("reward", *env.task.reward_keys)
+        last = self.last
+        return FrameState(
+            state=s,
+            ranges=self.td["lidar"][0] * env.config.lidar.max_range,
+            task=env.task,
+            config=env.config,
+            tolerance=tuple(float(x[0]) for x in env.tolerances()),
+            difficulty=env.get_difficulty(),
+            rewards={} if last is None else {k: float(last[k]) for k in keys},
+            last_action=None if self.last_action is None else self.last_action.reshape(-1).tolist(),
+            episode_return=self.episode_return,
+            outcome=self.outcome,
+            mode=self.mode,
+            waiting=self.waiting,
+            paused=self.paused,
+            episodes_done=self.episodes_done,
+            done_hint=self.done_hint,
+            key_rows=key_help("policy" in self.sources, env.task.reverse) if self.show_keys else (),
+            camera=self._camera,
+        )
 
     def render(self) -> None:
         """Draw the current state: ``self.view_image`` (bird's-eye view, with the waiting or
         outcome banner) and ``self.frame`` (view + HUD panel, what the window shows and videos
         record)."""
-        s = self.env.get_state()[0]
-        t = int(s["step_count"]) * self.env.config.dt
-        kwargs: dict[str, Any] = {"size_px": self.view.size_px}
-        if self.view.follow:
-            kwargs["view_half_extent"] = self.view.half_extent
-        else:
-            kwargs.update(self._camera)
-        caption = f"t {t:4.1f} s  v {float(s['speed']):4.1f} m/s"
-        if self.outcome:
-            caption += f"  {self.outcome}"
-        tol_pos, tol_ang = (float(x[0]) for x in self.env.tolerances())
-        self.view_image = draw_state(
-            s,
-            self.td["lidar"][0] * self.env.config.lidar.max_range,
-            self.env.task.rel_angles,
-            (tol_pos, tol_ang),
-            hud_lines=[caption],
-            **kwargs,
-        )
-        if self.waiting:
-            self.view_image = with_banner(
-                self.view_image, "press W to drive", _NOTE, "the clock starts with the first key"
-            )
-        elif self.outcome:
-            color = next((c for _, name, c in _OUTCOMES if name == self.outcome), COLORS["hud"])
-            hint = f"return {self.episode_return:+.2f} after {t:.1f} s"
-            hint += f"   {self.done_hint}" if self.done_hint else ""
-            self.view_image = with_banner(self.view_image, self.outcome, color, hint)
-        self.frame = with_panel(self.view_image, self.hud(s), self.view.panel_px)
+        self.view_image, self.frame = render_frame(self.frame_state(), self.view)
         self.frame_id += 1
 
     def hud(self, s: TensorDictBase) -> list[Line]:
         """HUD and key-help lines for the panel, from the truck's state ``s``."""
-        cfg = self.env.config
-        tol_pos, tol_ang = (float(x[0]) for x in self.env.tolerances())
-        status = "WAITING" if self.waiting else "PAUSED" if self.paused else ""
-        v = float(s["speed"])
-        lines: list[Line] = [
-            (f"mode {self.mode.upper()}  {status}", _NOTE if status else COLORS["hud"]),
-            f"control {cfg.control.longitudinal} / {cfg.control.lateral}",
-            f"step {int(s['step_count'])}/{cfg.max_steps}   scenes {self.episodes_done}",
-            f"speed {v:6.2f} m/s  acc {float(s['accel']):+5.2f}  gear {gear(v)}",
-            f"steer {math.degrees(s['steer']):+6.1f} deg  rate {math.degrees(s['steer_rate']):+5.1f}",
-            f"articulation {math.degrees(s['pose'][3]):+6.1f} deg",
-            "",
-            *(
-                f"{q.label:<16} {shown_float(q, float(s[q.key])):7.2f} {q.shown_unit}"
-                for q in self.env.task.error_quantities
-            ),
-            f"tolerance {tol_pos:.2f} m, {math.degrees(tol_ang):.1f} deg",
-            f"difficulty {self.env.get_difficulty():.1f}",
-            "",
-        ]
-        last = self.last
-        keys = ("reward", *self.env.task.reward_keys)
-        r = {k: 0.0 if last is None else float(last[k]) for k in keys}
-        lines.append(f"return {self.episode_return:+8.3f}  last {r['reward']:+.3f}")
-        terms = [f"{k.removeprefix('r_')[:9]:<9} {r[k]:+.3f}" for k in keys[1:]]
-        lines += [" " + "  ".join(terms[i : i + 2]) for i in range(0, len(terms), 2)]
-        if self.last_action is not None:
-            a = self.last_action.reshape(-1).tolist()
-            lines.append(f" action {a[0]:+.2f} {a[1]:+.2f}")
-        else:  # same line count at step 0: the panel does not jump at the first step
-            lines.append(" action   --    --")
-        color = next((c for _, name, c in _OUTCOMES if name == self.outcome), COLORS["hud"])
-        lines += [(f"outcome {self.outcome or 'driving'}", color), ""]
-        if self.show_keys:
-            help_rows = key_help("policy" in self.sources, self.env.task.reverse)
-            lines += [f"{k}\t{v}" for k, v in help_rows]
-        return lines
+        return hud_lines(self.frame_state(s))
 
 
 # ---------------------------------------------------------------------------------- loop

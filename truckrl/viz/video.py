@@ -1,7 +1,10 @@
 """Video files, animated GIFs and frame strips from RGB frames (no moviepy, no window).
 
 The one video writer of the project: the viewer streams frames into :class:`Mp4Writer` as they are
-shown, and training videos write a whole episode with :func:`write_mp4`. Files are H.264 (High
+shown, and training videos write a whole episode with :func:`write_mp4`. The one frame renderer
+too: :func:`render_frame` draws a :class:`FrameState` (a snapshot of one truck's episode) as the
+viewer shows it, for the viewer's runner and for training videos, which roll out the env
+themselves and pass the snapshots here. Files are H.264 (High
 profile, yuv420p) in an mp4 container with the index at the front (``+faststart``): what browsers,
 VS Code and TensorBoard's neighbours play. The encoder is libx264 inside PyAV's wheels (``av``, a
 dependency), so nothing outside Python is needed.
@@ -10,13 +13,21 @@ dependency), so nothing outside Python is needed.
 from __future__ import annotations
 
 import io
+import math
 import os
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
+
+from truckrl.viz.config import ViewConfig
+from truckrl.viz.draw import COLORS, draw_state
+from truckrl.viz.keyboard import gear
+from truckrl.viz.panel import Line, with_banner, with_panel
 
 #: Encoder settings: constant quality 20 (visually lossless for flat drawings and text),
 #: ``tune=animation`` (large flat areas, sharp edges).
@@ -205,3 +216,144 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:
     if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
         raise OSError(f"cannot write {path}")
     return path
+
+
+# ---------------------------------------------------------------------------------- frames
+#: Banner and panel colours: a good outcome, a bad one, a note (waiting, paused).
+OK_COLOR, BAD_COLOR = COLORS["goal"], (255, 95, 95)
+NOTE_COLOR = COLORS["lidar"]
+
+
+@dataclass
+class FrameState:
+    """What one viewer frame shows: a snapshot of one truck's episode, no env needed.
+
+    The viewer's runner and the training videos' rollout both fill it after each step, so both
+    draw the same frames (:func:`render_frame`).
+
+    Attributes:
+        state: the truck's state (one row of ``env.get_state()``: scalar entries).
+        ranges: ``[R]`` LiDAR ranges [m] of the current observation.
+        task: the task (beam angles, error quantities, reward terms, whether it reverses).
+        config: the env config (``dt``, ``control``, ``max_steps``).
+        tolerance: goal tolerance (position [m], heading [rad]) at the current difficulty.
+        difficulty: the current difficulty.
+        rewards: the last step's ``"reward"`` and reward terms (zeros before the first step).
+        last_action: the last action ``(longitudinal, lateral)`` (None before the first step).
+        episode_return: sum of the rewards so far.
+        outcome: the finished episode's outcome label (None while driving).
+        mode: the action source's name ("policy", "manual", ...).
+        waiting: the episode waits for the first drive key (a banner says so).
+        paused: the viewer is paused.
+        episodes_done: finished episodes so far.
+        done_hint: extra banner text for a finished episode (what a key does next).
+        key_rows: key-help rows for the panel (empty: none).
+        camera: fixed camera ``{"center", "view_half_extent"}`` (:func:`fixed_camera`); None
+            follows the truck.
+    """
+
+    state: Any
+    ranges: Any
+    task: Any
+    config: Any
+    tolerance: tuple[float, float]
+    difficulty: float
+    rewards: dict[str, float]
+    last_action: Sequence[float] | None = None
+    episode_return: float = 0.0
+    outcome: str | None = None
+    mode: str = "policy"
+    waiting: bool = False
+    paused: bool = False
+    episodes_done: int = 0
+    done_hint: str = ""
+    key_rows: Sequence[tuple[str, str]] = ()
+    camera: dict[str, Any] | None = None
+
+
+def outcome_color(label: str | None) -> tuple[int, int, int]:
+    """The colour of an outcome label (the HUD colour while driving or for an unknown one)."""
+    from truckrl.tasks import OUTCOMES
+
+    good = next((o.good for o in OUTCOMES if o.label == label), None)
+    return COLORS["hud"] if good is None else OK_COLOR if good else BAD_COLOR
+
+
+def fixed_camera(start: Any, view: ViewConfig) -> dict[str, Any]:
+    """Centre and half extent [m] that show the whole start truck and the goal, with margin;
+    ``start``: the episode's start state (``env.get_state()``, one truck)."""
+    import torch
+
+    from truckrl.sim.vehicle import truck_corners
+
+    tractor, trailer, _ = truck_corners(start["pose"], start["params"])
+    pts = torch.cat((tractor[0], trailer[0], start["goal"][0, None, :2])).cpu()
+    lo, hi = pts.min(0).values, pts.max(0).values
+    half = 0.5 * float((hi - lo).max()) + view.margin
+    return {"center": 0.5 * (lo + hi), "view_half_extent": max(view.half_extent, half)}
+
+
+def render_frame(fs: FrameState, view: ViewConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``(view_image, frame)``: the bird's-eye view with the waiting or outcome banner, and the
+    frame the viewer shows and videos record (view + HUD panel), uint8 RGB."""
+    s = fs.state
+    t = int(s["step_count"]) * fs.config.dt
+    kwargs: dict[str, Any] = {"size_px": view.size_px}
+    if view.follow or fs.camera is None:
+        kwargs["view_half_extent"] = view.half_extent
+    else:
+        kwargs.update(fs.camera)
+    caption = f"t {t:4.1f} s  v {float(s['speed']):4.1f} m/s"
+    if fs.outcome:
+        caption += f"  {fs.outcome}"
+    image = draw_state(
+        s, fs.ranges, fs.task.rel_angles, fs.tolerance, hud_lines=[caption], **kwargs
+    )
+    if fs.waiting:
+        image = with_banner(
+            image, "press W to drive", NOTE_COLOR, "the clock starts with the first key"
+        )
+    elif fs.outcome:
+        hint = f"return {fs.episode_return:+.2f} after {t:.1f} s"
+        hint += f"   {fs.done_hint}" if fs.done_hint else ""
+        image = with_banner(image, fs.outcome, outcome_color(fs.outcome), hint)
+    return image, with_panel(image, hud_lines(fs), view.panel_px)
+
+
+def hud_lines(fs: FrameState) -> list[Line]:
+    """HUD and key-help lines for the panel."""
+    from truckrl.tasks import shown_float
+
+    s, cfg = fs.state, fs.config
+    tol_pos, tol_ang = fs.tolerance
+    status = "WAITING" if fs.waiting else "PAUSED" if fs.paused else ""
+    v = float(s["speed"])
+    lines: list[Line] = [
+        (f"mode {fs.mode.upper()}  {status}", NOTE_COLOR if status else COLORS["hud"]),
+        f"control {cfg.control.longitudinal} / {cfg.control.lateral}",
+        f"step {int(s['step_count'])}/{cfg.max_steps}   scenes {fs.episodes_done}",
+        f"speed {v:6.2f} m/s  acc {float(s['accel']):+5.2f}  gear {gear(v)}",
+        f"steer {math.degrees(s['steer']):+6.1f} deg  rate {math.degrees(s['steer_rate']):+5.1f}",
+        f"articulation {math.degrees(s['pose'][3]):+6.1f} deg",
+        "",
+        *(
+            f"{q.label:<16} {shown_float(q, float(s[q.key])):7.2f} {q.shown_unit}"
+            for q in fs.task.error_quantities
+        ),
+        f"tolerance {tol_pos:.2f} m, {math.degrees(tol_ang):.1f} deg",
+        f"difficulty {fs.difficulty:.1f}",
+        "",
+    ]
+    keys = ("reward", *fs.task.reward_keys)
+    r = {k: fs.rewards.get(k, 0.0) for k in keys}
+    lines.append(f"return {fs.episode_return:+8.3f}  last {r['reward']:+.3f}")
+    terms = [f"{k.removeprefix('r_')[:9]:<9} {r[k]:+.3f}" for k in keys[1:]]
+    lines += [" " + "  ".join(terms[i : i + 2]) for i in range(0, len(terms), 2)]
+    if fs.last_action is not None:
+        a = list(fs.last_action)
+        lines.append(f" action {a[0]:+.2f} {a[1]:+.2f}")
+    else:  # same line count at step 0: the panel does not jump at the first step
+        lines.append(" action   --    --")
+    lines += [(f"outcome {fs.outcome or 'driving'}", outcome_color(fs.outcome)), ""]
+    lines += [f"{k}\t{v}" for k, v in fs.key_rows]
+    return lines
