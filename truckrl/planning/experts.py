@@ -13,17 +13,12 @@ from collections.abc import Callable
 from types import ModuleType
 
 from truckrl.config.fields import ConfigError
+from truckrl.tasks.registry import task_package
 
 #: Expert attribute: ``steering_prior(pose [N, 3], goal [N, 3], params, f [N]) -> [N, 3]``.
 STEERING_PRIOR = "steering_prior"
 #: Expert attribute: ``demonstrations(env_cfg, episodes, seed, difficulty) -> (solved, samples)``.
 DEMONSTRATIONS = "demonstrations"
-
-
-def task_package(name: str) -> str:
-    """The package of task ``name``, as :func:`truckrl.tasks.registry.task_class` reads it: the
-    folder ``truckrl.tasks.<name>``, or ``name`` itself when it is a dotted path."""
-    return name if "." in name else f"truckrl.tasks.{name}"
 
 
 def task_expert(name: str) -> ModuleType | None:

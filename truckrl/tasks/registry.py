@@ -23,6 +23,12 @@ def task_names() -> list[str]:
     return sorted(m.name for m in pkgutil.iter_modules(truckrl.tasks.__path__) if m.ispkg)
 
 
+def task_package(name: str) -> str:
+    """The package of task ``name``: the folder ``truckrl.tasks.<name>``, or ``name`` itself when
+    it is a dotted path (a task folder outside the package)."""
+    return name if "." in name else f"truckrl.tasks.{name}"
+
+
 def task_class(name: str) -> type:
     """The :class:`~truckrl.tasks.base.Task` subclass of task ``name``.
 
@@ -33,10 +39,10 @@ def task_class(name: str) -> type:
     if not all(p.isidentifier() for p in parts) or (len(parts) == 1 and name not in task_names()):
         raise ConfigError(f"env.task.name = {name!r} is not one of {task_names()}")
     try:
-        module = importlib.import_module(name if len(parts) > 1 else f"truckrl.tasks.{name}")
+        module = importlib.import_module(task_package(name))
     except ModuleNotFoundError:
         raise ConfigError(f"env.task.name = {name!r} is not one of {task_names()}") from None
     cls = getattr(module, "TASK", None)
     if cls is None:
-        raise ConfigError(f"truckrl.tasks.{name} defines no TASK")
+        raise ConfigError(f"{task_package(name)} defines no TASK")
     return cls
