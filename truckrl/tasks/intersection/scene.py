@@ -6,14 +6,11 @@ Every scene of a batch is drawn independently; all randomness comes from one ``t
 
 Layout (all lengths in metres, angles in radians)
 -------------------------------------------------
-* **Roads.** Both roads pass through the scene centre ``P`` (uniform in a square of half-side
-  ``center_jitter`` around the origin) and span ``[-half_extent, half_extent]`` along their
-  direction ``d_r``; their curbs are the lines at ``+-width_r / 2`` along the left normal ``n_r``.
-  Road 1 (crossing scenes only) is road 0 turned by the crossing angle. The curb ends are open.
-* **Curbs of a crossing.** The four curb-curb crossing points are the corners of the intersection
-  parallelogram (``intersection``, counter-clockwise). Each curb line is split at its two
-  corners and the part inside the other road is dropped, so the 8 curb segments meet exactly at
-  the 4 corners. A straight road has 2 curb segments; the other 6 slots are padding.
+* **Roads and curbs** (:mod:`truckrl.sim.roads`): both roads pass through the scene centre ``P``
+  (uniform in a square of half-side ``center_jitter`` around the origin) and span
+  ``+-half_extent`` along ``d_r``; road 1 (crossing scenes only) is road 0 turned by the crossing
+  angle. At a crossing the 8 curb segments meet at the corners of the intersection parallelogram
+  (``intersection``, counter-clockwise); a straight road has 2, the other 6 slots are padding.
 * **Arms.** A crossing has four arms: road ``r`` on side ``sigma = +-1`` of ``P``. ``e_r`` is the
   extent of the parallelogram along ``d_r`` (largest ``|(corner - P) . d_r|``).
 
@@ -33,12 +30,12 @@ stays in its half of the road and fully on it).
   resampled for ``rounds`` rounds, and a crossing scene still without a valid pair becomes a
   straight-road scene (valid by construction).
 * Every start and goal rear axle stays ``curb_reach`` metres (the LiDAR range) inside the curb ends.
-* Left turns leave the trailer room to straighten (``left_turn_exit``, :func:`left_turn_exit`):
-  the goal lies at least ``(tan(turn / 2) + left_turn_exit)`` trailer wheelbases past the corner
-  of the start and goal lanes; a pair that does not is rejected like one that does not fit its
-  arm. Without it (``left_turn_exit = 0``) some sharp left turns of long trailers leave no room
-  to straighten: neither the planner nor a trained policy solves them at difficulty 6. Right
-  turns need no such rule.
+* Left turns leave the trailer room to straighten (``left_turn_exit``; the room is
+  :func:`~truckrl.sim.roads.turn_exit_room`): the goal lies at least ``(tan(turn / 2) +
+  left_turn_exit)`` trailer wheelbases past the corner of the start and goal lanes; a pair that
+  does not is rejected like one that does not fit its arm. Without it (``left_turn_exit = 0``)
+  some sharp left turns of long trailers leave no room to straighten: neither the planner nor a
+  trained policy solves them at difficulty 6. Right turns need no such rule.
 
 Each scene records its **route** (``SceneBatch.route``): :data:`ROUTE_STRAIGHT_ROAD` (a straight
 road scene, fallbacks included), or at a crossing :data:`ROUTE_STRAIGHT_ON` (goal on the opposite
@@ -49,14 +46,12 @@ random numbers.
 
 Obstacles (the solvability rule)
 --------------------------------
-Up to ``max_obstacles`` rectangles parked along the curbs, aligned with their road (``mask``
-tells which exist). Slot ``k`` sits on curb line ``k mod C`` (``C = 4`` curb lines at a crossing,
-2 on a straight road), alternating between the two arms of the line. Slots are
-``obstacle_spacing`` long and start ``obstacle_intersection_clearance`` beyond the parallelogram
-along their road (at ``P`` on a straight road); each holds one obstacle with
-``obstacle_min_gap / 2`` to spare at both ends and is occupied with ``obstacle_keep_prob``. An
-obstacle lies ``obstacle_curb_offset`` (> 0: it never touches a curb) inside its curb, so it
-occupies only the curb strip of depth ``obstacle_curb_offset[1] + obstacle_width[1]``.
+Up to ``max_obstacles`` rectangles parked along the curbs (``mask`` tells which exist), slot by
+slot as :func:`truckrl.sim.roads.curb_boxes` lays them out: ``obstacle_spacing`` long slots from
+``obstacle_intersection_clearance`` beyond the parallelogram, one obstacle each with
+``obstacle_min_gap / 2`` to spare at both ends, occupied with ``obstacle_keep_prob``, lying
+``obstacle_curb_offset`` (> 0: it never touches a curb) inside its curb, so in the curb strip of
+depth ``obstacle_curb_offset[1] + obstacle_width[1]``.
 
 What holds by construction, given the checks of :class:`SceneConfig`:
 
@@ -86,11 +81,28 @@ import torch
 from torch import Tensor
 
 from truckrl.config.fields import ConfigError, param, validate
-from truckrl.sim.geometry import KIND_CURB, KIND_OBSTACLE, rectangle_segments, wrap_angle
+from truckrl.sim.geometry import KIND_CURB, KIND_OBSTACLE, wrap_angle
+from truckrl.sim.roads import (
+    CROSSING_CURB_SLOTS,
+    BoxRule,
+    Roads,
+    crossing_curbs,
+    crossing_roads,
+    curb_boxes,
+    first_valid,
+    lane_interval,
+    lane_offset,
+    pick_road,
+    repeat_rounds,
+    right_normal,
+    scene_device,
+    turn_exit_room,
+    uniform,
+)
 from truckrl.sim.vehicle import truck_extents
 
 #: Curb segment slots per scene: 2 roads x 2 curbs x 2 pieces (a straight road uses the first 2).
-CURB_SLOTS = 8
+CURB_SLOTS = CROSSING_CURB_SLOTS
 #: ``route`` values of a scene: one straight road (crossing fallbacks included); at a crossing,
 #: straight on, a left turn (counter-clockwise) or a right turn (clockwise).
 ROUTE_STRAIGHT_ROAD, ROUTE_STRAIGHT_ON, ROUTE_LEFT, ROUTE_RIGHT = 0, 1, 2, 3
@@ -365,40 +377,6 @@ class SceneBatch:
         return SceneBatch(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
 
 
-def _uniform(bounds: tuple[float, float], u: Tensor) -> Tensor:
-    return bounds[0] + (bounds[1] - bounds[0]) * u
-
-
-def _right(u: Tensor) -> Tensor:
-    """Right-hand normal of unit directions ``u [..., 2]``."""
-    return torch.stack((u[..., 1], -u[..., 0]), dim=-1)
-
-
-def _pick(t: Tensor, idx: Tensor) -> Tensor:
-    """``t[i, idx[i]]`` for ``t [N, 2, ...]`` and ``idx [N]`` (road selection)."""
-    return torch.where((idx == 0).view(-1, *([1] * (t.dim() - 2))), t[:, 0], t[:, 1])
-
-
-def _lateral(width: Tensor, gap: Tensor, half_width: Tensor) -> Tensor:
-    """Offset [m] of a pose from its road centreline: ``gap`` from the curb, kept in its half."""
-    lat = torch.maximum(0.5 * width - gap - half_width, half_width)
-    return torch.minimum(lat, 0.5 * width - half_width)
-
-
-@dataclass
-class _Roads:
-    """Both roads of every scene (road 1 is only used where the scene is a crossing)."""
-
-    centre: Tensor  # [n, 2] scene centre P: both centrelines pass through it
-    heading: Tensor  # [n, 2]
-    width: Tensor  # [n, 2]
-    dirs: Tensor  # [n, 2, 2] unit direction d_r
-    normals: Tensor  # [n, 2, 2] left normal n_r
-    corners: Tensor  # [n, 4, 2] intersection parallelogram, counter-clockwise
-    extent: Tensor  # [n, 2] e_r, the parallelogram's extent along d_r from P
-    angle: Tensor  # [n] crossing angle as sampled: road 1 is road 0 turned by it
-
-
 @dataclass
 class _Extents:
     """Truck footprint at articulation 0 relative to the tractor rear axle [m], each ``[n]``."""
@@ -408,15 +386,14 @@ class _Extents:
     half_width: Tensor  # half the wider body
 
 
-# Long on purpose: the batched stages (roads, poses, curbs, obstacles) stay in one sequence so
-# the order of random draws, which fixes every seed's scenes, is visible in one place.
+# One sequence of stages (roads, poses, curbs, obstacles): the order of random draws in one place.
 def generate_scenes(
     cfg: SceneConfig,
     params: dict[str, Tensor],
     generator: torch.Generator | None = None,
     device=None,
 ) -> SceneBatch:
-    """Draw one random scene per truck.
+    """Draw one random scene per truck: a :class:`SceneBatch` of ``N`` valid scenes (module doc).
 
     Args:
         cfg: generator parameters.
@@ -424,17 +401,8 @@ def generate_scenes(
             :func:`truckrl.sim.vehicle.sample_vehicle_params`; the start and goal footprints use them.
         generator: source of all randomness; its device is the output device.
         device: output device when no generator is given (default: that of ``params``).
-
-    Returns:
-        A :class:`SceneBatch` of ``N`` valid scenes (see the module doc for the rules).
     """
-    if generator is not None:
-        dev = generator.device
-    elif device is not None:
-        dev = torch.device(device)
-    else:
-        dev = next(iter(params.values())).device
-    p = {k: v.to(dev, torch.float32) for k, v in params.items()}
+    dev, p = scene_device(params, generator, device)
     n = p["wheelbase"].shape[0]
 
     def rand(*shape: int) -> Tensor:
@@ -451,7 +419,7 @@ def generate_scenes(
     c = crossing.unsqueeze(-1)
     start = torch.where(c, cross_start, straight_start)  # [n, 4]: x, y, heading, road
     goal = torch.where(c, cross_goal, straight_goal)
-    curbs, curb_mask = _curbs(roads, crossing, cfg.half_extent)
+    curbs, curb_mask = crossing_curbs(roads, crossing, cfg.half_extent)
     roads.corners = roads.corners * crossing.view(n, 1, 1)
     obstacles, obstacle_mask = _obstacles(cfg, rand, roads, crossing, start, goal, ext)
 
@@ -460,14 +428,6 @@ def generate_scenes(
     kind = torch.full((n, cfg.num_segments), KIND_OBSTACLE, dtype=torch.int8, device=dev)
     kind[:, :CURB_SLOTS] = KIND_CURB
     road_mask = torch.stack((torch.ones_like(crossing), crossing), dim=-1)
-    road_table = torch.cat(
-        (
-            roads.centre.unsqueeze(1).expand(n, 2, 2),
-            roads.heading.unsqueeze(-1),
-            roads.width.unsqueeze(-1),
-        ),
-        -1,
-    )
     route = torch.where(crossing, cross_route, ROUTE_STRAIGHT_ROAD).to(torch.int8)
     turn = goal[:, 2] - start[:, 2]  # headings in [-pi, pi]: atan2 wraps to (-pi, pi]
     turn_angle = torch.atan2(torch.sin(turn), torch.cos(turn))
@@ -479,41 +439,24 @@ def generate_scenes(
         goal=goal[:, :3],
         crossing=crossing,
         intersection=roads.corners,
-        roads=road_table * road_mask.unsqueeze(-1),
+        roads=roads.table() * road_mask.unsqueeze(-1),
         road_mask=road_mask,
         route=route,
         turn_angle=turn_angle,
         crossing_angle=torch.where(crossing, roads.angle, 0.0),
-        start_road_width=_pick(roads.width, start[:, 3].long()),
-        goal_road_width=_pick(roads.width, goal[:, 3].long()),
+        start_road_width=pick_road(roads.width, start[:, 3].long()),
+        goal_road_width=pick_road(roads.width, goal[:, 3].long()),
         goal_distance=(goal[:, :2] - start[:, :2]).norm(dim=-1),
     )
 
 
-def _sample_roads(cfg: SceneConfig, rand, n: int, dev) -> _Roads:
+def _sample_roads(cfg: SceneConfig, rand, n: int, dev) -> Roads:
     """Random centre, headings and widths, and the crossing parallelogram of every scene."""
     centre = (2.0 * rand(n, 2) - 1.0) * cfg.center_jitter
     h0 = wrap_angle(2.0 * math.pi * rand(n))
-    angle = _uniform(cfg.crossing_angle, rand(n))
+    angle = uniform(cfg.crossing_angle, rand(n))
     heading = torch.stack((h0, wrap_angle(h0 + angle)), dim=-1)
-    width = _uniform(cfg.road_width, rand(n, 2))
-    dirs = torch.stack((torch.cos(heading), torch.sin(heading)), dim=-1)
-    normals = torch.stack((-dirs[..., 1], dirs[..., 0]), dim=-1)
-    # Corner with offsets (o0, o1) from the two centrelines: solve n0.x = o0, n1.x = o1.
-    n0, n1 = normals[:, 0], normals[:, 1]
-    det = (n0[:, 0] * n1[:, 1] - n0[:, 1] * n1[:, 0]).unsqueeze(-1)  # sin(angle) > 0
-    signs = torch.tensor([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]], device=dev)
-    o0 = signs[:, 0] * 0.5 * width[:, :1]  # [n, 4]
-    o1 = signs[:, 1] * 0.5 * width[:, 1:]
-    corners = centre.unsqueeze(1) + torch.stack(
-        (
-            (n1[:, 1:2] * o0 - n0[:, 1:2] * o1) / det,
-            (-n1[:, 0:1] * o0 + n0[:, 0:1] * o1) / det,
-        ),
-        dim=-1,
-    )  # counter-clockwise: the map x -> (n0.x, n1.x) keeps orientation (det > 0)
-    along = torch.einsum("nkc,nrc->nrk", corners - centre.unsqueeze(1), dirs)  # [n, 2, 4]
-    return _Roads(centre, heading, width, dirs, normals, corners, along.abs().amax(-1), angle)
+    return crossing_roads(centre, heading, uniform(cfg.road_width, rand(n, 2)), angle)
 
 
 def _pose(x: Tensor, u: Tensor, road: Tensor) -> Tensor:
@@ -522,10 +465,10 @@ def _pose(x: Tensor, u: Tensor, road: Tensor) -> Tensor:
 
 
 def _crossing_poses(
-    cfg: SceneConfig, rand, roads: _Roads, ext: _Extents, trailer_wheelbase: Tensor
+    cfg: SceneConfig, rand, roads: Roads, ext: _Extents, trailer_wheelbase: Tensor
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Start on an approach arm, goal on another arm, by ``cfg.rounds`` rounds of rejection
-    (left turns also by the exit rule, :func:`left_turn_exit`).
+    (left turns also by the exit rule, :func:`~truckrl.sim.roads.turn_exit_room`).
 
     Returns:
         ``ok [n]`` (a valid pair was found), start and goal ``[n, 4]`` (see :func:`_pose`), and
@@ -540,28 +483,30 @@ def _crossing_poses(
     # every value is computed by the same elementwise arithmetic as one round at a time.
     draws = [(rand(n, 6), rand(n, 2)) for _ in range(k)]
     r = torch.cat([d[0] for d in draws])  # [k n, 6]
-    gaps = _uniform(cfg.shoulder_gap, torch.cat([d[1] for d in draws]))  # [k n, 2]
-    roads = _Roads(**{f.name: _repeat(getattr(roads, f.name), k) for f in fields(roads)})
-    ext = _Extents(_repeat(ext.front, k), _repeat(ext.rear, k), _repeat(ext.half_width, k))
+    gaps = uniform(cfg.shoulder_gap, torch.cat([d[1] for d in draws]))  # [k n, 2]
+    roads = Roads(**{f.name: repeat_rounds(getattr(roads, f.name), k) for f in fields(roads)})
+    ext = _Extents(
+        repeat_rounds(ext.front, k), repeat_rounds(ext.rear, k), repeat_rounds(ext.half_width, k)
+    )
     centre = roads.centre
     rs = (r[:, 0] < 0.5).long()
     sig_s = torch.where(r[:, 1] < 0.5, 1.0, -1.0)
     choice = (3.0 * r[:, 2]).long().clamp_max(2)  # 0 straight on, 1 / 2 turn either way
     rg = torch.where(choice == 0, rs, 1 - rs)
     sig_g = torch.where(choice == 0, -sig_s, torch.where(choice == 1, 1.0, -1.0))
-    us = -sig_s.unsqueeze(-1) * _pick(roads.dirs, rs)  # towards P
-    ug = sig_g.unsqueeze(-1) * _pick(roads.dirs, rg)  # away from P
-    lat_s = _lateral(_pick(roads.width, rs), gaps[:, 0], ext.half_width)
-    lat_g = _lateral(_pick(roads.width, rg), gaps[:, 1], ext.half_width)
+    us = -sig_s.unsqueeze(-1) * pick_road(roads.dirs, rs)  # towards P
+    ug = sig_g.unsqueeze(-1) * pick_road(roads.dirs, rg)  # away from P
+    lat_s = lane_offset(pick_road(roads.width, rs), gaps[:, 0], ext.half_width)
+    lat_g = lane_offset(pick_road(roads.width, rg), gaps[:, 1], ext.half_width)
     # distances along the arms from P: footprints clear of the intersection and of road ends
-    as_lo = _pick(roads.extent, rs) + margin + ext.front
+    as_lo = pick_road(roads.extent, rs) + margin + ext.front
     as_hi = torch.clamp(L - ext.rear, max=reach)
-    ag_lo = _pick(roads.extent, rg) + margin + ext.rear
+    ag_lo = pick_road(roads.extent, rg) + margin + ext.rear
     ag_hi = torch.clamp(L - ext.front, max=reach)
     # goal distance: uniform over goal_distance and the distances between the nearest and
     # the farthest pose pair on these arms (all values between are reachable by continuity)
-    q = centre + lat_g.unsqueeze(-1) * _right(ug)
-    p_s = centre + lat_s.unsqueeze(-1) * _right(us)
+    q = centre + lat_g.unsqueeze(-1) * right_normal(ug)
+    p_s = centre + lat_s.unsqueeze(-1) * right_normal(us)
     d_near = (p_s - as_lo.unsqueeze(-1) * us - q - ag_lo.unsqueeze(-1) * ug).norm(dim=-1)
     d_far = (p_s - as_hi.unsqueeze(-1) * us - q - ag_hi.unsqueeze(-1) * ug).norm(dim=-1)
     d_lo = torch.clamp(torch.minimum(d_near, d_far), min=cfg.goal_distance[0])
@@ -589,213 +534,65 @@ def _crossing_poses(
     # start direction (|cross| = sin(crossing angle) > 0 on the other road)
     left = us[:, 0] * ug[:, 1] - us[:, 1] * ug[:, 0] > 0.0
     if cfg.left_turn_exit > 0.0:
-        room = left_turn_exit(xs, us, xg, ug, _repeat(trailer_wheelbase, k))
+        room = turn_exit_room(xs, us, xg, ug, repeat_rounds(trailer_wheelbase, k))
         valid = valid & ~((choice != 0) & left & (room < cfg.left_turn_exit))
     picked = torch.where(choice == 0, ROUTE_STRAIGHT_ON, torch.where(left, ROUTE_LEFT, ROUTE_RIGHT))
     # each scene takes its first valid round; a scene without one keeps zeros (the fallback)
-    ok, row = _first_valid(valid.view(k, n))
+    ok, row = first_valid(valid.view(k, n))
     start = torch.where(ok.unsqueeze(-1), _pose(xs, us, rs)[row], 0.0)
     goal = torch.where(ok.unsqueeze(-1), _pose(xg, ug, rg)[row], 0.0)
     route = torch.where(ok, picked[row], ROUTE_STRAIGHT_ROAD)
     return ok, start, goal, route
 
 
-def _repeat(t: Tensor, k: int) -> Tensor:
-    """``t [n, ...]`` stacked ``k`` times along its first dimension: ``[k n, ...]``."""
-    return t.repeat(k, *([1] * (t.dim() - 1)))
-
-
-def _first_valid(valid: Tensor) -> tuple[Tensor, Tensor]:
-    """For ``valid [k, ...]`` (rounds first): whether any round is valid ``[...]``, and the
-    flat index ``round * numel + position`` of the first valid one (of round 0 where none is)."""
-    ok = valid.any(0)
-    first = valid.to(torch.uint8).argmax(0)  # the first maximum: the earliest valid round
-    position = torch.arange(ok.numel(), device=valid.device).view(ok.shape)
-    return ok, first * ok.numel() + position
-
-
-def left_turn_exit(
-    start: Tensor, u_start: Tensor, goal: Tensor, u_goal: Tensor, trailer_wheelbase: Tensor
-) -> Tensor:
-    """How much straight lane a turn leaves the trailer after its arc, in trailer wheelbases.
-
-    With ``corner`` the point where the start lane (the line through ``start`` along
-    ``u_start``) meets the goal lane (through ``goal`` along ``u_goal``), and ``turn`` the
-    heading change between them, this is ``|goal - corner| / trailer_wheelbase - tan(turn / 2)``:
-    an arc of kingpin radius ``R`` tangent to both lanes leaves the goal lane ``R tan(turn / 2)``
-    past the corner, and a truck whose articulation limit keeps ``R`` above about one trailer
-    wheelbase then needs the rest of the lane to bring the trailer straight (its heading error
-    decays like ``exp(-s / trailer_wheelbase)`` along a straight lane).
-
-    Args:
-        start, goal: ``[n, 2]`` rear-axle positions [m].
-        u_start, u_goal: ``[n, 2]`` unit headings (not parallel).
-        trailer_wheelbase: ``[n]`` [m].
-
-    Returns:
-        ``[n]`` [trailer wheelbases]; ``SceneConfig.left_turn_exit`` is its lower bound for
-        left turns.
-    """
-    cross = u_start[:, 0] * u_goal[:, 1] - u_start[:, 1] * u_goal[:, 0]  # sin(turn)
-    cos_turn = (u_start * u_goal).sum(-1)
-    d = goal - start
-    # corner = goal - before * u_goal; solve start + ahead * u_start = corner for before
-    safe = torch.where(cross.abs() < 1e-9, torch.ones_like(cross), cross)
-    before = (u_start[:, 0] * d[:, 1] - u_start[:, 1] * d[:, 0]) / safe
-    tan_half = cross.abs() / (1.0 + cos_turn).clamp_min(1e-9)  # tan(|turn| / 2)
-    return before / trailer_wheelbase - tan_half
-
-
-def _straight_poses(cfg: SceneConfig, rand, roads: _Roads, ext: _Extents) -> tuple[Tensor, Tensor]:
+def _straight_poses(cfg: SceneConfig, rand, roads: Roads, ext: _Extents) -> tuple[Tensor, Tensor]:
     """Start and goal ``[n, 4]`` on road 0, same lane and direction, goal ahead (valid by
     construction: used for straight roads and as the crossing fallback)."""
     L, reach = cfg.half_extent, cfg.half_extent - cfg.curb_reach
     n = roads.centre.shape[0]
     r = rand(n, 5)
     u = torch.where(r[:, :1] < 0.5, 1.0, -1.0) * roads.dirs[:, 0]
-    lat_s = _lateral(roads.width[:, 0], _uniform(cfg.shoulder_gap, r[:, 1]), ext.half_width)
-    lat_g = _lateral(roads.width[:, 0], _uniform(cfg.shoulder_gap, r[:, 2]), ext.half_width)
-    dist = _uniform(cfg.goal_distance, r[:, 3])
+    lat_s = lane_offset(roads.width[:, 0], uniform(cfg.shoulder_gap, r[:, 1]), ext.half_width)
+    lat_g = lane_offset(roads.width[:, 0], uniform(cfg.shoulder_gap, r[:, 2]), ext.half_width)
+    dist = uniform(cfg.goal_distance, r[:, 3])
     ahead = (dist * dist - (lat_s - lat_g) ** 2).clamp_min(0.0).sqrt()
     t_lo = torch.clamp(ext.rear - L, min=-reach)
     t_hi = torch.clamp(L - ext.front, max=reach) - ahead
     t_s = t_lo + (t_hi - t_lo).clamp_min(0.0) * r[:, 4]
-    right = _right(u)
+    right = right_normal(u)
     xs = roads.centre + t_s.unsqueeze(-1) * u + lat_s.unsqueeze(-1) * right
     xg = roads.centre + (t_s + ahead).unsqueeze(-1) * u + lat_g.unsqueeze(-1) * right
     road = torch.zeros(n, dtype=torch.long, device=u.device)
     return _pose(xs, u, road), _pose(xg, u, road)
 
 
-def _curbs(roads: _Roads, crossing: Tensor, half_extent: float) -> tuple[Tensor, Tensor]:
-    """Curb segments ``[n, 8, 4]`` and mask ``[n, 8]``.
-
-    Slot ``4 r + 2 side + piece``: road ``r``, curb on side ``-n_r`` (0) or ``+n_r`` (1), piece
-    before (0) or after (1) the crossing along ``d_r``. A straight road uses slots 0 and 1 for its
-    two whole curbs.
-    """
-    n = crossing.shape[0]
-    half = 0.5 * roads.width.unsqueeze(-1)  # [n, 2, 1]
-    mid = roads.centre.view(n, 1, 1, 2) + torch.stack(
-        (-half, half), dim=2
-    ) * roads.normals.unsqueeze(2)
-    line_a = mid - half_extent * roads.dirs.unsqueeze(2)  # [n, road, side, 2]
-    line_b = mid + half_extent * roads.dirs.unsqueeze(2)
-    # corners on each curb line: road 0 side -/+ -> (0, 3) / (1, 2); road 1 -> (0, 1) / (3, 2)
-    idx = torch.tensor([[[0, 3], [1, 2]], [[0, 1], [3, 2]]], device=crossing.device)
-    cj = roads.corners[:, idx]  # [n, road, side, 2 corners, 2]
-    sj = torch.einsum("nrsjc,nrc->nrsj", cj - roads.centre.view(n, 1, 1, 1, 2), roads.dirs)
-    first = (sj[..., 0] <= sj[..., 1]).unsqueeze(-1)
-    c_lo = torch.where(first, cj[..., 0, :], cj[..., 1, :])
-    c_hi = torch.where(first, cj[..., 1, :], cj[..., 0, :])
-    cross_curbs = torch.stack(
-        (torch.cat((line_a, c_lo), -1), torch.cat((c_hi, line_b), -1)), dim=3
-    ).reshape(n, CURB_SLOTS, 4)
-    straight_curbs = torch.zeros_like(cross_curbs)
-    straight_curbs[:, :2] = torch.cat((line_a[:, 0], line_b[:, 0]), -1)
-    curbs = torch.where(crossing.view(n, 1, 1), cross_curbs, straight_curbs)
-    mask = torch.ones(n, CURB_SLOTS, dtype=torch.bool, device=crossing.device)
-    mask[:, 2:] = crossing.unsqueeze(-1)
-    return curbs, mask
-
-
 def _obstacles(
     cfg: SceneConfig,
     rand,
-    roads: _Roads,
+    roads: Roads,
     crossing: Tensor,
     start: Tensor,
     goal: Tensor,
     ext: _Extents,
 ) -> tuple[Tensor, Tensor]:
-    """Obstacle edges ``[n, 4K, 4]`` and mask ``[n, 4K]`` (rules in the module doc).
-
-    Obstacles and start/goal footprints are rectangles aligned with their road, so every rule that
-    can fail is an interval test in road coordinates (``s`` along ``d_r``); the others hold by
-    construction of the slots and by the config checks of :class:`SceneConfig`.
-    """
-    n, dev, K = crossing.shape[0], crossing.device, cfg.max_obstacles
-    if K == 0:
-        return torch.zeros(n, 0, 4, device=dev), torch.zeros(n, 0, dtype=torch.bool, device=dev)
-    slot = torch.arange(K, device=dev).unsqueeze(0)  # [1, K]
-    n_lines = torch.where(crossing, 4, 2).unsqueeze(-1)  # [n, 1]
-    line = slot % n_lines
-    rank = torch.div(slot, n_lines, rounding_mode="floor")
-    arm = torch.where(rank % 2 == 0, 1.0, -1.0)
-    road = torch.div(line, 2, rounding_mode="floor")  # [n, K]
-    side = torch.where(line % 2 == 0, -1.0, 1.0)
-    rows = torch.arange(n, device=dev).unsqueeze(-1)
-    first = torch.where(
-        crossing.unsqueeze(-1),
-        roads.extent[rows, road] + cfg.obstacle_intersection_clearance,
-        0.0,
-    )
-    slot_lo = first + torch.div(rank, 2, rounding_mode="floor") * cfg.obstacle_spacing
-    keep = rand(n, K) < cfg.obstacle_keep_prob
-
-    # Keep-out intervals on the start's and goal's own lane: footprint + zone, padded by clearance.
+    """Obstacle edges ``[n, 4K, 4]`` and mask ``[n, 4K]`` (rules in the module doc): boxes along
+    the curbs (:func:`truckrl.sim.roads.curb_boxes`), kept off the start's and goal's own lane
+    over their footprint and zone, padded by ``obstacle_pose_clearance``."""
     pad = cfg.obstacle_pose_clearance
     zones = [
-        _lane_interval(start, roads, -ext.rear - pad, ext.front + cfg.pose_zone_length + pad),
-        _lane_interval(goal, roads, -ext.rear - cfg.pose_zone_length - pad, ext.front + pad),
+        lane_interval(start, roads, -ext.rear - pad, ext.front + cfg.pose_zone_length + pad),
+        lane_interval(goal, roads, -ext.rear - cfg.pose_zone_length - pad, ext.front + pad),
     ]
-
-    # All rounds at once, rounds first ([k, n, K]); drawn round by round as a loop would.
-    k = cfg.rounds
-    r = torch.stack([rand(n, K, 4) for _ in range(k)])  # [k, n, K, 4]
-    half_len = 0.5 * _uniform(cfg.obstacle_length, r[..., 0])
-    room = cfg.obstacle_spacing - 2.0 * half_len - cfg.obstacle_min_gap
-    along = slot_lo + 0.5 * cfg.obstacle_min_gap + half_len + room * r[..., 3]
-    valid = along + half_len <= cfg.half_extent
-    s_r = arm * along
-    for road_p, side_p, lo, hi in zones:
-        same_lane = (road == road_p.unsqueeze(-1)) & (side == side_p.unsqueeze(-1))
-        overlap = (s_r + half_len > lo.unsqueeze(-1)) & (s_r - half_len < hi.unsqueeze(-1))
-        valid = valid & ~(same_lane & overlap)
-    drawn = torch.stack(
-        (
-            half_len,
-            0.5 * _uniform(cfg.obstacle_width, r[..., 1]),
-            _uniform(cfg.obstacle_curb_offset, r[..., 2]),
-        ),
-        dim=-1,
-    )  # [k, n, K, 3]: half length, half width, curb offset
-    # each slot takes its first valid round; a slot without one stays zero (and is masked)
-    ok, index = _first_valid(valid)
-    s = torch.where(ok, s_r.flatten()[index], 0.0)
-    dims = torch.where(ok.unsqueeze(-1), drawn.flatten(0, 2)[index], 0.0)
-    half_len, half_wid, offset = dims.unbind(-1)
-    lateral = side * (0.5 * roads.width[rows, road] - offset - half_wid)
-    xy = (
-        roads.centre.unsqueeze(1)
-        + s.unsqueeze(-1) * roads.dirs[rows, road]
-        + lateral.unsqueeze(-1) * roads.normals[rows, road]
+    rule = BoxRule(
+        count=cfg.max_obstacles,
+        spacing=cfg.obstacle_spacing,
+        crossing_clearance=cfg.obstacle_intersection_clearance,
+        keep_prob=cfg.obstacle_keep_prob,
+        length=cfg.obstacle_length,
+        width=cfg.obstacle_width,
+        curb_offset=cfg.obstacle_curb_offset,
+        min_gap=cfg.obstacle_min_gap,
+        rounds=cfg.rounds,
+        half_extent=cfg.half_extent,
     )
-    edges = rectangle_segments(
-        xy[..., 0], xy[..., 1], roads.heading[rows, road], half_len, half_len, half_wid
-    )
-    mask = (keep & ok).unsqueeze(-1).expand(n, K, 4).reshape(n, 4 * K)
-    return edges.flatten(1, 2), mask
-
-
-def _lane_interval(
-    pose: Tensor, roads: _Roads, t0: Tensor, t1: Tensor
-) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """The lane of a pose and an interval on it.
-
-    Args:
-        pose: ``[n, 4]`` (x, y, heading, road index).
-        roads: the scene roads.
-        t0, t1: ``[n]`` interval ends [m] ahead of the pose's rear axle (negative = behind).
-
-    Returns:
-        ``road [n]``, ``side [n]`` (+-1 along ``n_r``: the pose's half of the road) and ``lo, hi
-        [n]``: the interval in along-road coordinates [m] from the scene centre along ``d_r``.
-    """
-    road = pose[:, 3].long()
-    d = _pick(roads.dirs, road)
-    u = torch.stack((torch.cos(pose[:, 2]), torch.sin(pose[:, 2])), dim=-1)
-    k = torch.where((u * d).sum(-1) >= 0.0, 1.0, -1.0)  # driving along (+1) or against d_r
-    s = ((pose[:, :2] - roads.centre) * d).sum(-1)
-    a, b = s + k * t0, s + k * t1
-    return road, -k, torch.minimum(a, b), torch.maximum(a, b)
+    return curb_boxes(rule, rand, roads, crossing, zones)
