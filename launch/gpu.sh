@@ -5,7 +5,7 @@
 #   launch/gpu.sh OUT [checks|train|demos|all] [MINUTES]
 #
 #   checks: the CUDA tests (tests/test_device.py: no host sync in env.step, a collector + PPO
-#           iteration that stays on the GPU), `bench env --device cuda` at N = 4,096 ... 262,144
+#           iteration that stays on the GPU), `bench env device=cuda` at N = 4,096 ... 262,144
 #           and `bench train device=cuda experiment=gpu` at 32,768 trucks, 8 minibatches;
 #   train:  `python -m truckrl.train experiment=gpu` until difficulty 6 or MINUTES (default 8);
 #   demos:  `python -m truckrl.train experiment=gpu_demos stop_difficulty=6` until difficulty 6 or
@@ -41,10 +41,10 @@ step() {  # step NAME COMMAND...: run, tee the log into OUT/NAME.log, count a fa
 
 if [ "$WHAT" = checks ] || [ "$WHAT" = all ]; then
     step tests python3 -m pytest -q -p no:cacheprovider tests/test_device.py -rs
-    step bench_env python3 -m truckrl.bench env --device cuda --envs 4096 65536 262144 --no-paper \
-        --out "$OUT"
+    step bench_env python3 -m truckrl.bench env device=cuda "envs=[4096,65536,262144]" paper=false \
+        "out=$OUT"
     step bench_train python3 -m truckrl.bench train device=cuda experiment=gpu \
-        collector.num_envs=32768 ppo.num_minibatches=8 --output "$OUT/bench_train.json"
+        collector.num_envs=32768 ppo.num_minibatches=8 "out=$OUT/bench_train.json"
 fi
 if [ "$WHAT" = train ] || [ "$WHAT" = all ]; then
     step train python3 -m truckrl.train experiment=gpu max_minutes="$MIN" \
