@@ -179,8 +179,7 @@ def help_text(config_name: str) -> str:
 
 
 def task_folders() -> list[str]:
-    """The task folders' names, as :func:`truckrl.tasks.task_names` lists them, without importing
-    :mod:`truckrl.tasks` (its package imports torch; ``--help`` must not)."""
+    """:func:`truckrl.tasks.task_names` without importing torch (``--help`` must not)."""
     import pkgutil
 
     return sorted(m.name for m in pkgutil.iter_modules([str(_TASKS)]) if m.ispkg)
@@ -209,12 +208,14 @@ def with_task_presets(argv: list[str]) -> list[str]:
             inner = value.strip()[1:-1].strip()
             a, merged = f"{key}=[{', '.join(([inner] if inner else []) + ours)}]", True
         out.append(a)
-    # first: Hydra's parser takes the overrides as one run of positional arguments (--cfg job last)
-    return out if merged else [f"hydra.searchpath=['file://conf', {', '.join(ours)}]", *out]
+    at = next((i for i, a in enumerate(out) if "=" in a and not a.startswith("-")), 0)
+    # Hydra parses the overrides as one run of positional arguments: ours beside the first one
+    # (-m a=1, a=1 --cfg job), or first where there is none (--info may take a value)
+    ours = [f"hydra.searchpath=['file://conf', {', '.join(ours)}]"]
+    return out if merged else [*out[:at], *ours, *out[at:]]
 
 
-# The presets' search path includes the user's ./conf overlay; run from elsewhere it is absent,
-# which is normal, so Hydra's warning about it would only be noise.
+# the user's ./conf overlay on the search path is optional: Hydra's note on its absence is noise
 warnings.filterwarnings(
     "ignore", message=r"provider=hydra\.searchpath in (main|command-line), path=conf"
 )
