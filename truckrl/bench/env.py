@@ -37,7 +37,7 @@ from truckrl.config.fields import param, validate
 from truckrl.env import TruckEnv
 from truckrl.tasks import NUM_FEATURES
 
-TARGET_STEPS_PER_S = 100_000  # issue target on a 2-core CPU, 16 beams
+TARGET_STEPS_PER_S = 100_000  # the target, 16 beams, on a CPU
 TARGET_RATIO_VS_PAPER = 30.0  # best config >= 30x the paper layout in the same run
 PAPER_WORKERS = 24  # paper: 24 single-truck worker processes
 

@@ -44,7 +44,7 @@ import torch
 from truckrl.bench.report import print_table, write_json
 from truckrl.config.fields import param, validate
 
-#: ``quick=true``: a small eager run (no compile) that finishes well under a minute on 2 cores.
+#: ``quick=true``: a small eager run (no compile): a check that the benchmark runs, not a figure.
 QUICK_OVERRIDES = (
     "collector.num_envs=64",
     "collector.steps_per_env=32",
@@ -53,7 +53,7 @@ QUICK_OVERRIDES = (
     "ppo.compile=false",
     "collector.compile_policy=false",
 )
-#: What ``quick=true`` sets unless given: a shared 2-core machine runs slower on 2 torch threads.
+#: What ``quick=true`` sets unless given (one torch thread: a small batch on a shared machine).
 QUICK = {"iterations": 2, "warmup": 1, "threads": 1}
 
 #: Parts of an iteration, in order; they and ``other_s`` add up to ``total_s``.
