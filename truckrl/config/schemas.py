@@ -41,7 +41,7 @@ class CollectorConfig:
     compile_policy: bool = param(
         False,
         doc="torch.compile the rollout policy the collector calls every step (network, action "
-        "sample, log-prob; ~5 s once per process; ~2.5x faster calls at 1,024 trucks on 2 cores)",
+        "sample, log-prob; compiled once per process)",
     )
 
     @property
@@ -142,12 +142,11 @@ class DemosConfig:
     iterations: int | None = param(
         None, lo=1, hi=100_000, doc="planner CEM iterations per attempt (null: its own)"
     )
-    compile: bool = param(True, doc="torch.compile the planner's rollouts (~15 s once)")
+    compile: bool = param(True, doc="torch.compile the planner's rollouts (compiled once)")
     device: str | None = param(
         None,
         doc="where the planner plans and replays (null: the run's device); cloning runs on the "
-        "run's device. cpu under a GPU run: the host's cores (on the H100 machine's 16: 2.4 min "
-        "for 600 scenes, against 0.7 min on its GPU)",
+        "run's device. cpu under a GPU run: planning on the host's cores",
     )
     bc_coeff: float = param(
         0.0,
