@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from truckrl.config.fields import ConfigError
+from truckrl.sim.geometry import KIND_CURB, KIND_OBSTACLE
 from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params
 from truckrl.tasks.dock.scene import (
     DOCK_INFO_KEYS,
@@ -18,7 +19,6 @@ from truckrl.tasks.dock.scene import (
     DockSceneConfig,
     generate_dock_scenes,
 )
-from truckrl.tasks.intersection.scene import KIND_CURB, KIND_OBSTACLE
 
 N = 10_000
 TOL = 1e-3  # [m] float32 round-off at coordinates of O(100 m)

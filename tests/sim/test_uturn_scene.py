@@ -11,13 +11,13 @@ import torch
 
 from truckrl.config.fields import ConfigError
 from truckrl.sim.collision import contour_collides
+from truckrl.sim.geometry import KIND_CURB
 from truckrl.sim.vehicle import (
     VehicleConfig,
     kinematics_step,
     sample_vehicle_params,
     vehicle_outline,
 )
-from truckrl.tasks.intersection.scene import KIND_CURB
 from truckrl.tasks.uturn.scene import (
     DEAD_END_SLOT,
     INFO_KEYS,

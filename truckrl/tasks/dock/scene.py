@@ -3,8 +3,8 @@
 Every scene of a batch is drawn independently, all at once (no per-scene Python loop); all
 randomness comes from one ``torch.Generator`` (same seed -> same scenes, on its device). The scene
 is line segments ``[N, E, 4]`` with a validity mask and a ``kind`` per segment, the layout of
-:mod:`truckrl.tasks.intersection.scene` (``kind`` :data:`~truckrl.sim.geometry.KIND_CURB` for the building and the
-yard's curb and walls, :data:`~truckrl.sim.geometry.KIND_OBSTACLE` for parked trailers), with
+every task's scene (``kind`` :data:`~truckrl.sim.geometry.KIND_CURB` for the building and the yard's
+curb and walls, :data:`~truckrl.sim.geometry.KIND_OBSTACLE` for parked trailers), with
 ``E = 3 + 5 * max_bays`` fixed by the config.
 
 Layout (the dock frame; lengths in metres, angles in radians)
@@ -73,7 +73,8 @@ import torch
 from torch import Tensor
 
 from truckrl.config.fields import ConfigError, param, validate
-from truckrl.sim.geometry import KIND_CURB, KIND_OBSTACLE, rectangle_segments, rotate, wrap_angle
+from truckrl.sim.geometry import KIND_CURB, KIND_OBSTACLE, rectangle_segments, wrap_angle
+from truckrl.sim.roads import scene_device, to_world, uniform
 from truckrl.sim.vehicle import trailer_rear_offset, truck_extents
 
 #: Per-episode metadata keys of :attr:`DockSceneBatch.info` (meaning and units there).
@@ -257,10 +258,6 @@ class DockSceneBatch:
         return DockSceneBatch(**out, info={k: v.to(device) for k, v in self.info.items()})
 
 
-def _uniform(bounds: tuple[float, float], u: Tensor) -> Tensor:
-    return bounds[0] + (bounds[1] - bounds[0]) * u
-
-
 def generate_dock_scenes(
     cfg: DockSceneConfig,
     params: dict[str, Tensor],
@@ -278,25 +275,75 @@ def generate_dock_scenes(
     Returns:
         A :class:`DockSceneBatch` of ``N`` scenes.
     """
-    if generator is not None:
-        dev = generator.device
-    elif device is not None:
-        dev = torch.device(device)
-    else:
-        dev = next(iter(params.values())).device
-    p = {k: v.to(dev, torch.float32) for k, v in params.items()}
+    dev, p = scene_device(params, generator, device)
     n, B = p["wheelbase"].shape[0], cfg.max_bays
-
     # every draw at once, in a fixed order: same seed -> same scenes
     r = torch.rand(n, 12, generator=generator, device=dev)
     rb = torch.rand(n, B, 4, generator=generator, device=dev)
+    jitter = torch.rand(n, B, generator=generator, device=dev)
 
-    # ---- the row of bays (dock frame)
+    row = _bay_row(cfg, r, rb, jitter)
+    front, rear, hw = truck_extents(p)
+    length = front + rear
+    apron, y_lo, y_hi = _apron(cfg, r[:, 4], row, length, hw)
+    rear_off = trailer_rear_offset(p)
+    width = row.width
+    goal_rear = torch.stack((torch.zeros_like(width), torch.full_like(width, cfg.dock_gap)), -1)
+    goal_axle = goal_rear + torch.stack((torch.zeros_like(width), rear_off), -1)
+    s, u, start_axle, start_h = _apron_start(cfg, r, y_lo, y_hi, length, rear, hw)
+    start_trailer_rear = start_axle - rear_off.unsqueeze(-1) * u  # `rear_off` behind the axle
+    segments, mask, kind = _dock_segments(cfg, row, apron)
+
+    # ---- into the world: turn by the frame heading, shift by the frame origin
+    frame_h = wrap_angle(2.0 * math.pi * r[:, 9])  # heading of the dock frame's x axis
+    origin = (2.0 * r[:, 10:12] - 1.0) * cfg.center_jitter
+    seg = segments.view(n, -1, 2, 2).reshape(n, -1, 2)
+    segments = to_world(seg, frame_h, origin).view(n, -1, 4) * mask.unsqueeze(-1)
+    axis = wrap_angle(frame_h + 0.5 * math.pi)  # bay axis, out of the building
+    goal = torch.cat((to_world(goal_axle, frame_h, origin), axis.unsqueeze(-1)), -1)
+    start_xy = to_world(start_axle, frame_h, origin)
+    start = torch.cat((start_xy, wrap_angle(frame_h + start_h).unsqueeze(-1)), -1)
+
+    info = _dock_info(row, apron)
+    info.update(
+        start_kind=torch.full((n,), START_APRON, dtype=torch.int8, device=dev),
+        start_lateral_offset=s * start_trailer_rear[:, 0],
+        start_distance=start_trailer_rear[:, 1],
+        start_heading=wrap_angle(start_h - 0.5 * math.pi),
+        start_goal_distance=(start_trailer_rear - goal_rear).norm(dim=-1),
+        pull_room=y_hi - cfg.dock_gap - length,
+        pull_draw=torch.rand(n, generator=generator, device=dev),
+        apron_draw=torch.rand(n, generator=generator, device=dev),
+    )
+    frame = torch.cat((origin, axis.unsqueeze(-1)), -1)
+    return DockSceneBatch(segments, mask, kind, start, goal, frame, info)
+
+
+@dataclass
+class _Row:
+    """The row of bays in the dock frame (module doc: bays, walls, parked trailers)."""
+
+    num_bays: Tensor  # [n] long
+    target: Tensor  # [n] long, the target bay's index from the row's -x end
+    width: Tensor  # [n] bay width W [m]
+    depth: Tensor  # [n] side wall length [m]
+    occupied: Tensor  # [n, B] bool: a parked trailer in the bay
+    wall_x: Tensor  # [n, B + 1] wall positions along the dock face [m]
+    wall_mask: Tensor  # [n, B + 1] bool: the wall exists
+    walls: Tensor  # [n, B + 1, 4] wall segments
+    parked: Tensor  # [n, B, 4, 4] parked trailer edges
+    parked_front: Tensor  # [n] farthest front of a parked trailer from the dock face (0: none) [m]
+
+
+def _bay_row(cfg: DockSceneConfig, r: Tensor, rb: Tensor, jitter: Tensor) -> _Row:
+    """The bays, their walls and parked trailers from the draws ``r [n, 12]`` (columns 0-3),
+    ``rb [n, B, 4]`` and ``jitter [n, B]`` (uniform in [0, 1))."""
+    dev, B = r.device, cfg.max_bays
     lo_b, hi_b = cfg.num_bays
     num_bays = (lo_b + ((hi_b - lo_b + 1) * r[:, 0]).floor()).clamp(lo_b, hi_b).long()
     target = (num_bays * r[:, 1]).floor().long().clamp(max=num_bays - 1)
-    width = _uniform(cfg.bay_width, r[:, 2])
-    depth = _uniform(cfg.bay_depth, r[:, 3])
+    width = uniform(cfg.bay_width, r[:, 2])
+    depth = uniform(cfg.bay_depth, r[:, 3])
     slot = torch.arange(B, device=dev).unsqueeze(0)  # [1, B] bay index
     bay_exists = slot < num_bays.unsqueeze(-1)
     occupied = bay_exists & (slot != target.unsqueeze(-1)) & (rb[..., 0] < cfg.occupied_prob)
@@ -310,38 +357,50 @@ def generate_dock_scenes(
     walls = torch.stack((wall_x, zeros_w, wall_x, zeros_w + depth.unsqueeze(-1)), -1)
 
     # parked trailers
-    p_len = _uniform(cfg.parked_length, rb[..., 1])
-    p_half = 0.5 * _uniform(cfg.parked_width, rb[..., 2])
-    p_gap = _uniform(cfg.parked_rear_gap, rb[..., 3])
-    jitter = torch.rand(n, B, generator=generator, device=dev)
-    jitter = cfg.parked_lateral_jitter * (2.0 * jitter - 1.0)
-    p_x = bay_x + jitter
+    p_len = uniform(cfg.parked_length, rb[..., 1])
+    p_half = 0.5 * uniform(cfg.parked_width, rb[..., 2])
+    p_gap = uniform(cfg.parked_rear_gap, rb[..., 3])
+    p_x = bay_x + cfg.parked_lateral_jitter * (2.0 * jitter - 1.0)
     up = torch.full_like(p_x, 0.5 * math.pi)
     parked = rectangle_segments(p_x, p_gap, up, p_len, torch.zeros_like(p_len), p_half)
     parked_front = torch.where(occupied, p_gap + p_len, 0.0).amax(-1)  # [n]
+    return _Row(
+        num_bays, target, width, depth, occupied, wall_x, wall_mask, walls, parked, parked_front
+    )
 
-    # ---- the truck, the apron and the goal
-    front, rear, hw = truck_extents(p)
-    length = front + rear
-    y_lo = torch.maximum(depth, parked_front) + cfg.start_clearance
+
+def _apron(
+    cfg: DockSceneConfig, r: Tensor, row: _Row, length: Tensor, hw: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The apron depth (drawn from ``r [n]``, raised where the truck would not fit: module doc)
+    and the start band ``y_lo, y_hi``, each ``[n]`` [m]."""
+    y_lo = torch.maximum(row.depth, row.parked_front) + cfg.start_clearance
     apron = torch.maximum(
-        _uniform(cfg.apron_depth, r[:, 4]),
+        uniform(cfg.apron_depth, r),
         torch.maximum(
             cfg.dock_gap + length + cfg.start_clearance,  # goal truck front to far curb
             y_lo + 2.0 * hw + cfg.start_clearance,  # the start band holds the truck at alpha 0
         ),
     )
-    y_hi = apron - cfg.start_clearance
-    pull_room = y_hi - cfg.dock_gap - length
-    rear_off = trailer_rear_offset(p)
-    goal_rear = torch.stack((torch.zeros_like(width), torch.full_like(width, cfg.dock_gap)), -1)
-    goal_axle = goal_rear + torch.stack((torch.zeros_like(width), rear_off), -1)
+    return apron, y_lo, apron - cfg.start_clearance
 
-    # ---- the start on the apron: direction, angle (clamped to fit the band), offset, distance
+
+def _apron_start(
+    cfg: DockSceneConfig,
+    r: Tensor,
+    y_lo: Tensor,
+    y_hi: Tensor,
+    length: Tensor,
+    rear: Tensor,
+    hw: Tensor,
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The start on the apron from the draws ``r [n, 12]`` (columns 5-8): driving direction
+    ``s [n]`` (+-1 along the dock face), heading vector ``u [n, 2]``, tractor rear axle ``[n,
+    2]`` and heading ``[n]`` in the dock frame (module doc, "Start")."""
     s = torch.where(r[:, 5] < 0.5, 1.0, -1.0)
     band = y_hi - y_lo
     alpha_max = torch.asin(((band - 2.0 * hw) / length).clamp(0.0, 1.0))
-    alpha = torch.minimum(torch.maximum(_uniform(cfg.start_angle, r[:, 6]), -alpha_max), alpha_max)
+    alpha = torch.minimum(torch.maximum(uniform(cfg.start_angle, r[:, 6]), -alpha_max), alpha_max)
     u = torch.stack((s * torch.cos(alpha), torch.sin(alpha)), -1)
     # y-extent of the truck's bounding rectangle relative to its rear-centre (rear end, rear
     # body centre): from -hw |cos| to length * sin(alpha) +- hw |cos|
@@ -350,64 +409,47 @@ def generate_dock_scenes(
     rel_hi = torch.maximum(lsin, torch.zeros_like(lsin)) + hcos
     yr_lo, yr_hi = y_lo - rel_lo, y_hi - rel_hi
     y_rear = yr_lo + (yr_hi - yr_lo).clamp_min(0.0) * r[:, 7]
-    offset = _uniform(cfg.start_lateral_offset, r[:, 8])
+    offset = uniform(cfg.start_lateral_offset, r[:, 8])
     start_rear = torch.stack((s * offset, y_rear), -1)  # rear end centre of the bounding box
-    # the tractor axle is `rear` ahead of the rearmost end; the trailer rear-centre `rear_off`
+    # the tractor axle is `rear` ahead of the rearmost end
     start_axle = start_rear + rear.unsqueeze(-1) * u
-    start_trailer_rear = start_axle - rear_off.unsqueeze(-1) * u
-    start_h = torch.atan2(u[:, 1], u[:, 0])
+    return s, u, start_axle, torch.atan2(u[:, 1], u[:, 0])
 
-    # ---- segments in the dock frame
-    x0 = wall_x[:, 0] - cfg.yard_margin
-    x1 = torch.gather(wall_x, 1, num_bays.unsqueeze(-1)).squeeze(-1) + cfg.yard_margin
+
+def _dock_segments(cfg: DockSceneConfig, row: _Row, apron: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Segments ``[n, E, 4]`` in the dock frame (slots in :class:`DockSceneBatch`), their mask
+    and kind ``[n, E]``."""
+    n, B = apron.shape[0], cfg.max_bays
+    x0 = row.wall_x[:, 0] - cfg.yard_margin
+    x1 = torch.gather(row.wall_x, 1, row.num_bays.unsqueeze(-1)).squeeze(-1) + cfg.yard_margin
     zero = torch.zeros_like(x0)
     dock_face = torch.stack((x0, zero, x1, zero), -1)
     curb = torch.stack((x0, apron, x1, apron), -1)
     segments = torch.cat(
-        (dock_face.unsqueeze(1), curb.unsqueeze(1), walls, parked.flatten(1, 2)), dim=1
+        (dock_face.unsqueeze(1), curb.unsqueeze(1), row.walls, row.parked.flatten(1, 2)), dim=1
     )
-    ones = torch.ones(n, _FIXED_SLOTS, dtype=torch.bool, device=dev)
-    park_mask = occupied.unsqueeze(-1).expand(n, B, 4).reshape(n, 4 * B)
-    mask = torch.cat((ones, wall_mask, park_mask), dim=1)
-    kind = torch.full((n, cfg.num_segments), KIND_OBSTACLE, dtype=torch.int8, device=dev)
+    ones = torch.ones(n, _FIXED_SLOTS, dtype=torch.bool, device=apron.device)
+    park_mask = row.occupied.unsqueeze(-1).expand(n, B, 4).reshape(n, 4 * B)
+    mask = torch.cat((ones, row.wall_mask, park_mask), dim=1)
+    kind = torch.full((n, cfg.num_segments), KIND_OBSTACLE, dtype=torch.int8, device=apron.device)
     kind[:, : _FIXED_SLOTS + B + 1] = KIND_CURB
+    return segments, mask, kind
 
-    # ---- into the world: turn by the frame heading, shift by the frame origin
-    frame_h = wrap_angle(2.0 * math.pi * r[:, 9])  # heading of the dock frame's x axis
-    origin = (2.0 * r[:, 10:12] - 1.0) * cfg.center_jitter
 
-    def world(xy: Tensor) -> Tensor:
-        h = frame_h.view(-1, *([1] * (xy.dim() - 2)))
-        o = origin.view(n, *([1] * (xy.dim() - 2)), 2)
-        return rotate(xy, h.expand(xy.shape[:-1])) + o
-
-    seg = segments.view(n, -1, 2, 2)
-    segments = world(seg.reshape(n, -1, 2)).view(n, -1, 4) * mask.unsqueeze(-1)
-    axis = wrap_angle(frame_h + 0.5 * math.pi)  # bay axis, out of the building
-    goal = torch.cat((world(goal_axle), axis.unsqueeze(-1)), -1)
-    start = torch.cat((world(start_axle), wrap_angle(frame_h + start_h).unsqueeze(-1)), -1)
-
+def _dock_info(row: _Row, apron: Tensor) -> dict[str, Tensor]:
+    """The row's metadata of :attr:`DockSceneBatch.info` (bays, apron, occupied neighbours)."""
+    occupied, target, B = row.occupied, row.target, row.occupied.shape[1]
     left = torch.gather(occupied, 1, (target - 1).clamp_min(0).unsqueeze(-1)).squeeze(-1)
     left = left & (target > 0)
     right = torch.gather(occupied, 1, (target + 1).clamp(max=B - 1).unsqueeze(-1)).squeeze(-1)
-    right = right & (target + 1 < num_bays)
+    right = right & (target + 1 < row.num_bays)
     i8 = torch.int8
-    info = {
-        "bay_width": width,
-        "bay_depth": depth,
-        "num_bays": num_bays.to(i8),
+    return {
+        "bay_width": row.width,
+        "bay_depth": row.depth,
+        "num_bays": row.num_bays.to(i8),
         "target_bay": target.to(i8),
         "apron_depth": apron,
         "neighbours_occupied": (left.to(i8) + right.to(i8)),
         "occupied_bays": occupied.sum(-1).to(i8),
-        "start_kind": torch.full((n,), START_APRON, dtype=i8, device=dev),
-        "start_lateral_offset": s * start_trailer_rear[:, 0],
-        "start_distance": start_trailer_rear[:, 1],
-        "start_heading": wrap_angle(start_h - 0.5 * math.pi),
-        "start_goal_distance": (start_trailer_rear - goal_rear).norm(dim=-1),
-        "pull_room": pull_room,
-        "pull_draw": torch.rand(n, generator=generator, device=dev),
-        "apron_draw": torch.rand(n, generator=generator, device=dev),
     }
-    frame = torch.cat((origin, axis.unsqueeze(-1)), -1)
-    return DockSceneBatch(segments, mask, kind, start, goal, frame, info)
