@@ -10,7 +10,7 @@ forward the other way (or drive forward into the branch, reverse out, drive forw
 
 Everything is batched (no per-scene loops), pure torch, one ``torch.Generator`` for all
 randomness, and emitted as line segments ``[N, E, 4]`` (``E =`` :data:`NUM_SEGMENTS`) with a
-mask and the ``kind`` codes of :mod:`truckrl.tasks.intersection.scene` (all :data:`~truckrl.sim.geometry.KIND_CURB`).
+mask and a ``kind`` per segment (all :data:`~truckrl.sim.geometry.KIND_CURB`).
 
 Layout (local frame, then rotated by a uniform heading and shifted by ``center_jitter``)
 ---------------------------------------------------------------------------------------
@@ -91,7 +91,8 @@ import torch
 from torch import Tensor
 
 from truckrl.config.fields import ConfigError, param, validate
-from truckrl.sim.geometry import KIND_CURB, rotate, wrap_angle
+from truckrl.sim.geometry import KIND_CURB, wrap_angle
+from truckrl.sim.roads import lane_offset, scene_device, to_world, uniform
 from truckrl.sim.vehicle import truck_extents
 
 #: Segment slots per scene (module doc, "Segments").
@@ -279,8 +280,89 @@ def forward_uturn_width(p: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
     return radius, 2.0 * radius + p["tractor_width"]
 
 
-def _uniform(bounds: tuple[float, float], u: Tensor) -> Tensor:
-    return bounds[0] + (bounds[1] - bounds[0]) * u
+@dataclass
+class _Drawn:
+    """One turnaround scene's drawn quantities, each ``[n]`` (module doc, "Layout")."""
+
+    road_w: Tensor  # road width W [m], clamped per truck
+    branch_w: Tensor  # branch width B_w across its axis [m], clamped per truck
+    branch_d: Tensor  # branch depth B_d from the curb line [m]
+    angle: Tensor  # branch angle a [rad]
+    sigma: Tensor  # branch side, +1 left, -1 right
+    chamfer: Tensor  # mouth chamfer c [m]
+    dead: Tensor  # bool, a dead-end wall
+    dead_gap: Tensor  # dead-end wall beyond the far chamfer [m]
+    start_gap: Tensor  # start's front bumper to the near chamfer [m]
+    goal_back: Tensor  # goal rear axle behind the start's [m]
+    gap_s: Tensor  # start's shoulder gap [m]
+    gap_g: Tensor  # goal's shoulder gap [m]
+    heading: Tensor  # road heading (+x of the local frame) [rad]
+
+
+def _draw(
+    cfg: UTurnSceneConfig, r: Tensor, length: Tensor, half_w: Tensor, fwd_width: Tensor
+) -> _Drawn:
+    """The scene's quantities from ``r [n, 14]`` (uniform in [0, 1)), the road and branch widths
+    clamped to the forward-U-turn criterion and the branch rule (module doc)."""
+    width_cap = fwd_width - cfg.forward_margin
+    lane_need = 2.0 * half_w  # the truck fits in its half of the road at the least
+    road_w = torch.minimum(uniform(cfg.road_width, r[:, 0]), width_cap)
+    road_w = torch.maximum(road_w, 2.0 * lane_need)
+    branch_lo = 2.0 * half_w + 2.0 * cfg.branch_side_clearance
+    branch_w = torch.minimum(uniform(cfg.branch_width, r[:, 1]), width_cap)
+    branch_w = torch.maximum(branch_w, branch_lo)
+    return _Drawn(
+        road_w=road_w,
+        branch_w=branch_w,
+        branch_d=uniform(cfg.branch_depth_factor, r[:, 2]) * length,
+        angle=uniform(cfg.branch_angle, r[:, 3]),
+        sigma=torch.where(r[:, 4] < cfg.left_prob, 1.0, -1.0),
+        chamfer=uniform(cfg.mouth_chamfer, r[:, 5]),
+        dead=r[:, 6] < cfg.dead_end_prob,
+        dead_gap=uniform(cfg.dead_end_gap, r[:, 7]) * length,
+        start_gap=uniform(cfg.start_gap, r[:, 8]),
+        goal_back=uniform(cfg.goal_back, r[:, 9]),
+        gap_s=uniform(cfg.shoulder_gap, r[:, 10]),
+        gap_g=uniform(cfg.shoulder_gap, r[:, 11]),
+        heading=wrap_angle(2.0 * math.pi * r[:, 12]),
+    )
+
+
+def _local_segments(d: _Drawn, h: Tensor, x_far: Tensor, half_extent: float) -> Tensor:
+    """The :data:`NUM_SEGMENTS` segments ``[n, 9, 4]`` in the local frame (road along ``+x``,
+    mouth centre at the origin; slots in the module doc); ``h`` is half the mouth's width along
+    the curb, ``x_far`` where the road ends."""
+    half = 0.5 * d.road_w
+    sin_a, cos_a = torch.sin(d.angle), torch.cos(d.angle)
+    c, sigma = d.chamfer, d.sigma
+    b = torch.stack((cos_a, sigma * sin_a), -1)  # branch axis [n, 2]
+    along = (d.branch_d / sin_a)[:, None]  # wall length along b
+    x_near = torch.full_like(half, -half_extent)
+    y_b = sigma * half  # the branch-side curb line
+    y_o = -sigma * half  # the other curb
+
+    def pt(x: Tensor, y: Tensor) -> Tensor:
+        return torch.stack((x, y), -1)
+
+    wall0 = pt(-h, y_b)  # near mouth corner (start side)
+    wall1 = pt(h, y_b)
+    chamfer0 = (pt(-h - c, y_b), wall0 + c[:, None] * b)
+    chamfer1 = (pt(h + c, y_b), wall1 + c[:, None] * b)
+    end0, end1 = wall0 + along * b, wall1 + along * b
+    return torch.stack(
+        (
+            torch.cat((pt(x_near, y_o), pt(x_far, y_o)), -1),
+            torch.cat((pt(x_near, y_b), chamfer0[0]), -1),
+            torch.cat((chamfer1[0], pt(x_far, y_b)), -1),
+            torch.cat(chamfer0, -1),
+            torch.cat(chamfer1, -1),
+            torch.cat((chamfer0[1], end0), -1),
+            torch.cat((chamfer1[1], end1), -1),
+            torch.cat((end0, end1), -1),
+            torch.cat((pt(x_far, -half), pt(x_far, half)), -1),
+        ),
+        1,
+    )
 
 
 def generate_uturn_scenes(
@@ -297,114 +379,55 @@ def generate_uturn_scenes(
         generator: source of all randomness; its device is the output device.
         device: output device when no generator is given (default: that of ``params``).
     """
-    if generator is not None:
-        dev = generator.device
-    elif device is not None:
-        dev = torch.device(device)
-    else:
-        dev = next(iter(params.values())).device
-    p = {k: v.to(dev, torch.float32) for k, v in params.items()}
+    dev, p = scene_device(params, generator, device)
     n = p["wheelbase"].shape[0]
     r = torch.rand(n, 14, generator=generator, device=dev)
-
     front, rear, half_w = truck_extents(p)
     length = front + rear
     radius, fwd_width = forward_uturn_width(p)
-    width_cap = fwd_width - cfg.forward_margin
-    lane_need = 2.0 * half_w  # the truck fits in its half of the road at the least
-    road_w = torch.minimum(_uniform(cfg.road_width, r[:, 0]), width_cap)
-    road_w = torch.maximum(road_w, 2.0 * lane_need)
-    branch_lo = 2.0 * half_w + 2.0 * cfg.branch_side_clearance
-    branch_w = torch.minimum(_uniform(cfg.branch_width, r[:, 1]), width_cap)
-    branch_w = torch.maximum(branch_w, branch_lo)
-    branch_d = _uniform(cfg.branch_depth_factor, r[:, 2]) * length
-    angle = _uniform(cfg.branch_angle, r[:, 3])
-    sigma = torch.where(r[:, 4] < cfg.left_prob, 1.0, -1.0)
-    chamfer = _uniform(cfg.mouth_chamfer, r[:, 5])
-    dead = r[:, 6] < cfg.dead_end_prob
-    dead_gap = _uniform(cfg.dead_end_gap, r[:, 7]) * length
-    start_gap = _uniform(cfg.start_gap, r[:, 8])
-    goal_back = _uniform(cfg.goal_back, r[:, 9])
-    gap_s = _uniform(cfg.shoulder_gap, r[:, 10])
-    gap_g = _uniform(cfg.shoulder_gap, r[:, 11])
-    heading = wrap_angle(2.0 * math.pi * r[:, 12])
+    d = _draw(cfg, r, length, half_w, fwd_width)
     centre = (2.0 * torch.rand(n, 2, generator=generator, device=dev) - 1.0) * cfg.center_jitter
     del r
 
     # ---- local geometry (road along +x, mouth centre at the origin)
-    half = 0.5 * road_w
-    sin_a, cos_a = torch.sin(angle), torch.cos(angle)
-    h = 0.5 * branch_w / sin_a
-    c = chamfer
-    b = torch.stack((cos_a, sigma * sin_a), -1)  # branch axis [n, 2]
-    along = (branch_d / sin_a)[:, None]  # wall length along b
-    zero = torch.zeros_like(half)
-    x_far = torch.where(dead, h + c + dead_gap, torch.full_like(half, cfg.half_extent))
-    x_near = torch.full_like(half, -cfg.half_extent)
-    y_b = sigma * half  # the branch-side curb line
-    y_o = -sigma * half  # the other curb
-
-    def pt(x: Tensor, y: Tensor) -> Tensor:
-        return torch.stack((x, y), -1)
-
-    wall0 = pt(-h, y_b)  # near mouth corner (start side)
-    wall1 = pt(h, y_b)
-    chamfer0 = (pt(-h - c, y_b), wall0 + c[:, None] * b)
-    chamfer1 = (pt(h + c, y_b), wall1 + c[:, None] * b)
-    end0, end1 = wall0 + along * b, wall1 + along * b
-    segs = torch.stack(
-        (
-            torch.cat((pt(x_near, y_o), pt(x_far, y_o)), -1),
-            torch.cat((pt(x_near, y_b), chamfer0[0]), -1),
-            torch.cat((chamfer1[0], pt(x_far, y_b)), -1),
-            torch.cat(chamfer0, -1),
-            torch.cat(chamfer1, -1),
-            torch.cat((chamfer0[1], end0), -1),
-            torch.cat((chamfer1[1], end1), -1),
-            torch.cat((end0, end1), -1),
-            torch.cat((pt(x_far, -half), pt(x_far, half)), -1),
-        ),
-        1,
-    )  # [n, 9, 4]
+    half = 0.5 * d.road_w
+    h, c = 0.5 * d.branch_w / torch.sin(d.angle), d.chamfer
+    x_far = torch.where(d.dead, h + c + d.dead_gap, torch.full_like(half, cfg.half_extent))
+    segs = _local_segments(d, h, x_far, cfg.half_extent)  # [n, 9, 4]
     mask = torch.ones(n, NUM_SEGMENTS, dtype=torch.bool, device=dev)
-    mask[:, DEAD_END_SLOT] = dead
+    mask[:, DEAD_END_SLOT] = d.dead
 
-    # ---- start and goal (local)
-    lat_s = torch.minimum(torch.maximum(half - gap_s - half_w, half_w), half - half_w)
-    lat_g = torch.minimum(torch.maximum(half - gap_g - half_w, half_w), half - half_w)
-    x_s = -(h + c) - start_gap - front
-    x_g = x_s - goal_back
-    start_local = torch.stack((x_s, -lat_s, zero), -1)
-    goal_local = torch.stack((x_g, lat_g, zero + math.pi), -1)
+    # ---- start and goal (local): each in its lane, the goal goal_back behind the start
+    zero = torch.zeros_like(half)
+    x_s = -(h + c) - d.start_gap - front
+    start_local = torch.stack((x_s, -lane_offset(d.road_w, d.gap_s, half_w), zero), -1)
+    goal_xy = (x_s - d.goal_back, lane_offset(d.road_w, d.gap_g, half_w))
+    goal_local = torch.stack((*goal_xy, zero + math.pi), -1)
 
     # ---- to the world
-    def world_xy(xy: Tensor) -> Tensor:
-        return rotate(xy, heading.view(n, *([1] * (xy.dim() - 2)))) + centre.view(
-            n, *([1] * (xy.dim() - 2)), 2
-        )
-
-    segments = world_xy(segs.view(n, NUM_SEGMENTS, 2, 2)).reshape(n, NUM_SEGMENTS, 4)
-    segments = segments * mask[..., None]
+    heading = d.heading
+    local = segs.view(n, NUM_SEGMENTS, 2, 2)
+    segments = to_world(local, heading, centre).reshape(n, NUM_SEGMENTS, 4) * mask[..., None]
 
     def world_pose(pl: Tensor) -> Tensor:
-        xy = rotate(pl[:, :2], heading) + centre
+        xy = to_world(pl[:, :2], heading, centre)
         return torch.cat((xy, wrap_angle(pl[:, 2:] + heading[:, None])), -1)
 
     start, goal = world_pose(start_local), world_pose(goal_local)
     kind = torch.full((n, NUM_SEGMENTS), KIND_CURB, dtype=torch.int8, device=dev)
     info = {
-        "road_width": road_w,
-        "branch_width": branch_w,
-        "branch_depth": branch_d,
-        "branch_side": sigma,
-        "branch_angle": angle,
+        "road_width": d.road_w,
+        "branch_width": d.branch_w,
+        "branch_depth": d.branch_d,
+        "branch_side": d.sigma,
+        "branch_angle": d.angle,
         "goal_distance": (goal[:, :2] - start[:, :2]).norm(dim=-1),
-        "dead_end": dead.float(),
+        "dead_end": d.dead.float(),
         "turn_radius": radius,
         "forward_width": fwd_width,
         "truck_length": length,
-        "start_gap": start_gap,
-        "branch_left": (sigma > 0).float(),
+        "start_gap": d.start_gap,
+        "branch_left": (d.sigma > 0).float(),
         "mouth_x": centre[:, 0],
         "mouth_y": centre[:, 1],
         "road_heading": heading,
@@ -412,7 +435,7 @@ def generate_uturn_scenes(
     # drawn last, so that the earlier draws (and so the scenes) do not depend on these keys
     late = torch.rand(n, 2, generator=generator, device=dev)
     info.update(
-        mouth_chamfer=chamfer,
+        mouth_chamfer=c,
         x_far=x_far,
         start_kind=torch.full_like(half, START_ROAD),
         stage_draw=late[:, 0],
