@@ -242,7 +242,7 @@ def test_planner_policy_plays_the_checkpoints_scenes_and_writes_beside_the_run(
 ):
     """``policy=planner`` plans the scenes the checkpoint is scored on (same env config, seed and
     difficulty): its per-route counts equal the policy's, and the JSON lands beside the run."""
-    import truckrl.planning.planner as planner_module
+    import truckrl.planning as planner_module
 
     run, _, _ = tiny_checkpoint
     small = planner_module.PlannerConfig(compile=False, samples=8, iterations=1)

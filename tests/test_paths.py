@@ -6,7 +6,7 @@ import torch
 
 from truckrl.config.fields import ConfigError
 from truckrl.evaluation.rollout import evaluate_policy
-from truckrl.planning.planner import held_out_states
+from truckrl.planning import held_out_states
 from truckrl.rl.policy import load_policy
 from truckrl.tasks import EnvConfig
 from truckrl.tools.paths import main, select

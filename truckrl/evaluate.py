@@ -94,7 +94,7 @@ PLANNER_DIFFICULTY = 6.0
 def evaluate(ec: EvaluateConfig) -> dict:
     """Load, check the output, run, summarise, print and write; return the JSON-ready result.
 
-    With ``policy=planner`` the CEM planner (:mod:`truckrl.planning.planner`) plays the same scenes
+    With ``policy=planner`` the CEM planner (:mod:`truckrl.planning`) plays the same scenes
     instead of the checkpoint's policy: with the checkpoint's env config and difficulty when one
     is given (a side-by-side comparison), else the default env at difficulty 6; its JSON goes to
     ``planner-<difficulty>-<seed>.json`` (beside the run, or under ``outputs/eval/``).
@@ -179,8 +179,8 @@ def _run_checkpoint(ec: EvaluateConfig):
 
 def planner_config():
     """The planner's settings for ``policy=planner``: the defaults of
-    :class:`~truckrl.planning.planner.PlannerConfig` (the README's baseline)."""
-    from truckrl.planning.planner import PlannerConfig
+    :class:`~truckrl.planning.PlannerConfig` (the README's baseline)."""
+    from truckrl.planning import PlannerConfig
 
     return PlannerConfig()
 
@@ -189,7 +189,7 @@ def _run_planner(ec: EvaluateConfig):
     """The planner on the scenes: ``(head, results, tolerance, errors, output, task name)``."""
     import time
 
-    from truckrl.planning.planner import plan_episodes
+    from truckrl.planning import plan_episodes
     from truckrl.tasks import EnvConfig
     from truckrl.tasks.config import flat_overrides, with_env_overrides
 

@@ -3,7 +3,7 @@
     truckrl plan episodes=200 seed=12345 difficulty=6
 
 Plans each of the ``episodes`` scenes that ``truckrl eval episodes=N seed=S`` scores (same seed
-and count, same scenes) with the CEM planner of :mod:`truckrl.planning.planner`, confirms every
+and count, same scenes) with the CEM planner of :mod:`truckrl.planning`, confirms every
 plan by replaying it through a fresh ``TruckEnv``, and prints the outcome rates, the final errors
 and the per-category table (:mod:`truckrl.evaluation.categories`). The JSON (``out``; default
 ``outputs/plan/<date>/<time>/plan.json``) holds the summary, the category rows, the timing and,
@@ -19,7 +19,7 @@ and either, overall and per category.
 
 ``env.FIELD=VALUE`` changes an env config field (``env.max_steps=300``,
 ``env.task.scene.road_width=[14,18]``, ``env.control.lateral=angle``), ``planner.FIELD=VALUE`` a
-:class:`~truckrl.planning.planner.PlannerConfig` field (``planner.samples=64``,
+:class:`~truckrl.planning.PlannerConfig` field (``planner.samples=64``,
 ``planner.compile=false``), ``category`` plans only the scenes in every named bin of the task
 (``category="[route right]"``, as the category table prints them). Bad input prints one line and
 exits with code 2.
@@ -111,7 +111,7 @@ def scene_indices(env_cfg: Any, args: PlanConfig):
         return None
     from truckrl.evaluation.categories import task_bins
     from truckrl.evaluation.rollout import SCENE_INFO_ENTRIES
-    from truckrl.planning.planner import held_out_states
+    from truckrl.planning import held_out_states
     from truckrl.sim.vehicle import trailer_length
     from truckrl.tools.paths import category_mask
 
@@ -131,7 +131,7 @@ def scene_indices(env_cfg: Any, args: PlanConfig):
 def run(args: PlanConfig) -> dict:
     import torch
 
-    from truckrl.planning.planner import plan_episodes
+    from truckrl.planning import plan_episodes
 
     env_cfg, loaded = configure(args)
     torch.set_num_threads(args.threads)
@@ -172,7 +172,7 @@ def report(args: PlanConfig, env_cfg, loaded, results: dict, tolerance, errors):
     from truckrl.cli import git_revision
     from truckrl.evaluation.categories import summarize_by_category, task_bins
     from truckrl.evaluation.rollout import summarize
-    from truckrl.planning.planner import category_info
+    from truckrl.planning import category_info
 
     n = int(results["success"].numel())
     summary = summarize(results, errors)

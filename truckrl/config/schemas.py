@@ -121,8 +121,8 @@ class DemosConfig:
     source: str = param(
         "planner",
         choices=("planner", "driver"),
-        doc="who demonstrates: the CEM planner (any forward task) or the scripted turnaround "
-        "driver (task uturn, whose scenes the planner cannot solve; truckrl/tasks/uturn/expert.py)",
+        doc="who demonstrates: the CEM planner (any forward task) or the task's own demonstrator "
+        "(demonstrations() in its folder's expert.py, for scenes the planner cannot solve)",
     )
     seed: int = param(
         99991, lo=0, hi=SEED_MAX, doc="their scene seed: one no evaluation uses (not 12345)"

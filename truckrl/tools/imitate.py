@@ -77,7 +77,7 @@ def run(args: ImitateConfig, overrides: list[str]) -> Path:
 
     from truckrl.cli import compose_config, git_revision
     from truckrl.config.schemas import TrainConfig
-    from truckrl.planning.planner import held_out_states
+    from truckrl.planning import held_out_states
     from truckrl.rl.checkpoint import save_training_state
     from truckrl.rl.curriculum import Curriculum
     from truckrl.rl.imitation import (

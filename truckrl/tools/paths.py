@@ -101,7 +101,7 @@ def run(cfg: PathsConfig) -> dict:
     import torch
 
     from truckrl.evaluation.rollout import evaluate_policy
-    from truckrl.planning.planner import held_out_states
+    from truckrl.planning import held_out_states
     from truckrl.rl.policy import load_policy
 
     torch.set_num_threads(cfg.threads)
