@@ -14,7 +14,8 @@ from truckrl.env import TruckEnv
 from truckrl.sim.vehicle import truck_extents
 from truckrl.tasks.base import NUM_FEATURES
 from truckrl.tasks.config import EnvConfig
-from truckrl.tasks.uturn.task import UTurnTask, reverse_path, route_to_go, turning_point
+from truckrl.tasks.uturn.start import reverse_path
+from truckrl.tasks.uturn.task import UTurnTask, route_to_go, turning_point
 
 UTURN = {"task": {"name": "uturn"}}
 TOL = 1e-3  # [m] float32 round-off at coordinates of O(100 m)
