@@ -80,10 +80,7 @@ def evaluate_policy(
     ended = torch.zeros(episodes, dtype=torch.bool, device=device)
     td = env.reset()
     start = env.get_state()
-    scene = {"trailer_length": trailer_length(start["params"])}
-    for entry in SCENE_INFO_ENTRIES:
-        if entry in start.keys():
-            scene |= {k: start[entry, k] for k in start[entry].keys()}
+    scene = _scene_of(start)
     path = [start["pose"]] if record_paths else None
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(env_cfg.max_steps):
@@ -98,6 +95,28 @@ def evaluate_policy(
                 break
             td = nxt
     env.close()
+    return _results(rec, flags, errors, scene, path), tolerance, errors
+
+
+def _scene_of(start: TensorDictBase) -> dict[str, Tensor]:
+    """Each episode's scene from the state at reset: "trailer_length" [m] and every entry of the
+    task's scene metadata (:data:`SCENE_INFO_ENTRIES`), each ``[E]``."""
+    scene = {"trailer_length": trailer_length(start["params"])}
+    for entry in SCENE_INFO_ENTRIES:
+        if entry in start.keys():
+            scene |= {k: start[entry, k] for k in start[entry].keys()}
+    return scene
+
+
+def _results(
+    rec: dict[str, Tensor],
+    flags: tuple[str, ...],
+    errors: tuple[Quantity, ...],
+    scene: dict[str, Tensor],
+    path: list[Tensor] | None,
+) -> dict[str, Tensor]:
+    """:func:`evaluate_policy`'s ``results`` on CPU from the values recorded at each episode's
+    end ``rec`` (flags, errors and "step_count"), the ``scene`` and the poses ``path``."""
     out = {k: rec[k].bool().cpu() for k in flags}
     out["length"] = rec["step_count"].cpu()
     for q in errors:
@@ -106,7 +125,7 @@ def evaluate_policy(
         out[k] = v.long().cpu() if k == "route" else v.cpu()
     if path is not None:
         out["path"] = torch.stack(path, 1).cpu()
-    return out, tolerance, errors
+    return out
 
 
 def summarize(results: dict[str, Tensor], errors: tuple[Quantity, ...]) -> dict[str, float]:

@@ -286,6 +286,45 @@ class PPO:
         """Critic values ``[*B, 1]`` of the observations in ``td`` (``[*B]``), without grad."""
         return self.ac.critic(td.select(OBS_KEY, LIDAR_KEY))["state_value"]
 
+    def _minibatch_step(
+        self,
+        shuffled: TensorDictBase,
+        rows: slice,
+        demos: TensorDictBase | None,
+        bc_coeff: Tensor,
+        params: list[Tensor],
+        timings: dict[str, float] | None,
+        dev: torch.device,
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor | None]:
+        """One gradient step on the minibatch ``shuffled[rows]`` (with ``bc_batch`` demonstration
+        rows drawn from ``demos`` when given), timed into ``timings`` as :meth:`update` says
+        (synchronising ``dev``).
+
+        Returns:
+            The minibatch's loss entries and KL (:meth:`_objective`), the gradient norm before
+            clipping, and the cloning term's action MSE (``None`` without demonstrations).
+        """
+        with _span(timings, "loss_forward", dev):
+            mb = shuffled[rows]
+            picked = None
+            if demos is not None:
+                pick = torch.randint(demos.numel(), (self.bc_batch,), device=demos.device)
+                picked = _take_rows(demos, pick)
+            # the KL of this minibatch before the step comes from the loss's own forward
+            # (RSL-RL order: the new learning rate applies to this very step)
+            total, stats, kl, bc = self._objective(mb, picked, bc_coeff)
+        with _span(timings, "optimizer", dev):
+            if self.schedule is not None:
+                self.set_lr(self.schedule.step(kl.item()))
+            self.optimizer.zero_grad(set_to_none=True)
+        with _span(timings, "backward", dev):
+            total.backward()
+        with _span(timings, "optimizer", dev):
+            grad_norm = torch.nn.utils.clip_grad_norm_(params, self.cfg.max_grad_norm)
+            self.optimizer.step()
+            self.ac.gaussian.project_()
+        return stats, kl, grad_norm, bc
+
     def update(
         self, batch: TensorDictBase, timings: dict[str, float] | None = None
     ) -> dict[str, float]:
@@ -331,25 +370,9 @@ class PPO:
                 # indexing per minibatch, with one indexing call per key instead of one per step
                 shuffled = _take_rows(batch, perm)
             for start in range(0, n, mb_size):
-                with _span(timings, "loss_forward", dev):
-                    mb = shuffled[start : start + mb_size]
-                    picked = None
-                    if demos is not None:
-                        pick = torch.randint(demos.numel(), (self.bc_batch,), device=demos.device)
-                        picked = _take_rows(demos, pick)
-                    # the KL of this minibatch before the step comes from the loss's own forward
-                    # (RSL-RL order: the new learning rate applies to this very step)
-                    total, stats, kl, bc = self._objective(mb, picked, bc_coeff)
-                with _span(timings, "optimizer", dev):
-                    if self.schedule is not None:
-                        self.set_lr(self.schedule.step(kl.item()))
-                    self.optimizer.zero_grad(set_to_none=True)
-                with _span(timings, "backward", dev):
-                    total.backward()
-                with _span(timings, "optimizer", dev):
-                    grad_norm = torch.nn.utils.clip_grad_norm_(params, self.cfg.max_grad_norm)
-                    self.optimizer.step()
-                    self.ac.gaussian.project_()
+                stats, kl, grad_norm, bc = self._minibatch_step(
+                    shuffled, slice(start, start + mb_size), demos, bc_coeff, params, timings, dev
+                )
                 with _span(timings, "metrics", dev):
                     stat_sums += stats
                     sums["kl"] += kl

@@ -91,27 +91,12 @@ def diagnose_uturn(
             nxt = env.step(actor(td))["next"]
             done = nxt["done"].squeeze(-1) & live
             pulled |= (s["pulled"] > 0.5) & live
-            code = torch.where(
-                nxt["success"].squeeze(-1),
-                1,
-                torch.where(
-                    nxt["collision"].squeeze(-1), 2, torch.where(nxt["jackknife"].squeeze(-1), 3, 0)
-                ),
-            )
+            code = _outcome_code(nxt)
             outcome = torch.where(done, code, outcome)
             length = torch.where(done, t + 1, length)
             crashed = done & (code == 2)
             if bool(crashed.any()):
-                dt = env_cfg.dt
-                travel = (s["speed"].abs() + params["max_accel"] * dt) * dt
-                tr, tl = touching(
-                    pose,
-                    params,
-                    first["segments"],
-                    first["mask"],
-                    along=travel + margin,
-                    across=0.1 * travel + margin,
-                )
+                tr, tl = _touched(s, params, first, env_cfg.dt, margin)
                 hits[0] |= tr & crashed[:, None]
                 hits[1] |= tl & crashed[:, None]
             ended |= done
@@ -130,6 +115,35 @@ def diagnose_uturn(
         "tractor_hit": hits[0],
         "trailer_hit": hits[1],
     }
+
+
+def _outcome_code(nxt: Any) -> Tensor:
+    """``[E]`` long: each env's outcome code after a step (:data:`OUTCOME_NAMES`; 0 also where
+    the episode goes on)."""
+    return torch.where(
+        nxt["success"].squeeze(-1),
+        1,
+        torch.where(
+            nxt["collision"].squeeze(-1), 2, torch.where(nxt["jackknife"].squeeze(-1), 3, 0)
+        ),
+    )
+
+
+def _touched(
+    s: Any, params: dict[str, Tensor], first: Any, dt: float, margin: float
+) -> tuple[Tensor, Tensor]:
+    """Which segment slots ``[E, S]`` the tractor and the trailer of state ``s`` touch, each body
+    lengthened by the step's reach ``(|v| + max_accel dt) dt + margin`` and widened by ``margin``
+    plus a tenth of it (module doc); the segments are those of the reset state ``first``."""
+    travel = (s["speed"].abs() + params["max_accel"] * dt) * dt
+    return touching(
+        s["pose"],
+        params,
+        first["segments"],
+        first["mask"],
+        along=travel + margin,
+        across=0.1 * travel + margin,
+    )
 
 
 def summarize_diagnosis(d: dict[str, Tensor]) -> list[dict[str, Any]]:
