@@ -17,6 +17,7 @@ from torch import Tensor
 from truckrl.config.fields import param, validate
 from truckrl.sim.collision import truck_collides, widened
 from truckrl.sim.geometry import rotate, wrap_angle
+from truckrl.sim.roads import uniform
 from truckrl.sim.vehicle import truck_extents
 from truckrl.tasks.uturn.scene import START_ARC, START_BRANCH, START_LEG, START_PAST, START_ROAD
 
@@ -188,16 +189,13 @@ def reverse_path(
     sin_a, cos_a = a.sin(), a.cos()
     place = info["place_draw"]
 
-    def draw(bounds: tuple[float, float]) -> Tensor:
-        return bounds[0] + (bounds[1] - bounds[0]) * place
-
     # start: trailer rear past_gap beyond the far chamfer's foot, the front 1 m short of x_far
     rear_x = 0.5 * info["branch_width"] / sin_a + info["mouth_chamfer"]
     room = info["x_far"] - rear_x - (front + rear) - 1.0
-    gap = torch.minimum(draw(cur.past_gap), room).clamp_min(0.0)
+    gap = torch.minimum(uniform(cur.past_gap, place), room).clamp_min(0.0)
     x0 = rear_x + gap + overhang  # the trailer axle
     # arc (left-branch frame): motion heading pi -> a, clockwise by pi - a, from (x_arc, 0)
-    radius = draw(cur.arc_radius)
+    radius = uniform(cur.arc_radius, place)
     turn = a - math.pi
     dy = radius * (1.0 - torch.cos(turn))
     x_end = (dy - half) * cos_a / sin_a  # the arc ends on the branch axis
@@ -206,7 +204,9 @@ def reverse_path(
     p0 = torch.stack((torch.maximum(x0, x_arc), torch.zeros_like(x0)), -1)
     # end: the trailer's rear corners branch_end_gap short of the end wall (skewed by pi/2 - a)
     skew = half_w * (cos_a / sin_a).abs()
-    depth_axle = (info["branch_depth"] - draw(cur.branch_end_gap) - skew) / sin_a - overhang
+    depth_axle = (
+        info["branch_depth"] - uniform(cur.branch_end_gap, place) - skew
+    ) / sin_a - overhang
     up = (depth_axle - (dy - half) / sin_a).clamp_min(0.0)
     frame = torch.stack((info["mouth_x"], info["mouth_y"], info["road_heading"]), -1)
     return ReversePath(
