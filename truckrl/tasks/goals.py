@@ -1,13 +1,15 @@
-"""Errors and success of a goal pose, for every task whose goal is a rear-axle pose with the
-trailer aligned (the paper's goal; ``intersection`` and ``uturn`` use it)."""
+"""Errors, success and reward weights of a goal pose, for every task whose goal is a rear-axle
+pose with the trailer aligned (the paper's goal; ``intersection`` and ``uturn`` use it)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import torch
 from torch import Tensor
 
+from truckrl.config.fields import param, validate
 from truckrl.sim.geometry import wrap_angle
 from truckrl.tasks.schema import Quantity
 
@@ -40,3 +42,24 @@ def pose_success(err: dict[str, Tensor], tol_pos: Tensor, tol_ang: Tensor) -> Te
         & (err["tractor_heading_error"] <= tol_ang)
         & (err["trailer_heading_error"] <= tol_ang)
     )
+
+
+@dataclass
+class PoseRewardConfig:
+    """The paper's reward weights for a goal pose (paper, "Rewards"); a task's reward config
+    extends it with its own shaping fields."""
+
+    progress: float = param(0.05, unit="1/m", doc="per metre of progress", source="paper")
+    tractor_heading: float = param(
+        0.5, unit="1/rad", doc="per radian of tractor heading correction", source="paper"
+    )
+    trailer_heading: float = param(
+        0.5, unit="1/rad", doc="per radian of trailer heading correction", source="paper"
+    )
+    time: float = param(0.0, unit="1/step", doc="every step", source="paper")
+    success: float = param(5.0, doc="on success", source="paper")
+    collision: float = param(-7.0, doc="on collision or jack-knife", source="paper")
+    timeout: float = param(-8.0, doc="on timeout", source="paper")
+
+    def __post_init__(self) -> None:
+        validate(self, "env.task.reward")

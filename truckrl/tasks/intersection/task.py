@@ -32,7 +32,7 @@ from truckrl.config.fields import param, validate
 from truckrl.sim.geometry import wrap_angle
 from truckrl.tasks.base import Task
 from truckrl.tasks.config import TaskConfig
-from truckrl.tasks.goals import POSE_ERRORS, pose_errors, pose_success
+from truckrl.tasks.goals import POSE_ERRORS, PoseRewardConfig, pose_errors, pose_success
 from truckrl.tasks.intersection.bins import episode_bins
 from truckrl.tasks.intersection.scene import ROUTE_KEYS, SceneConfig, generate_scenes
 
@@ -41,20 +41,9 @@ if TYPE_CHECKING:
 
 
 @dataclass
-class RewardConfig:
+class RewardConfig(PoseRewardConfig):
     """Reward weights (paper, "Rewards")."""
 
-    progress: float = param(0.05, unit="1/m", doc="per metre of progress", source="paper")
-    tractor_heading: float = param(
-        0.5, unit="1/rad", doc="per radian of tractor heading correction", source="paper"
-    )
-    trailer_heading: float = param(
-        0.5, unit="1/rad", doc="per radian of trailer heading correction", source="paper"
-    )
-    time: float = param(0.0, unit="1/step", doc="every step", source="paper")
-    success: float = param(5.0, doc="on success", source="paper")
-    collision: float = param(-7.0, doc="on collision or jack-knife", source="paper")
-    timeout: float = param(-8.0, doc="on timeout", source="paper")
     shaping: str = param(
         "goal",
         choices=("goal", "route"),

@@ -58,7 +58,7 @@ from truckrl.config.fields import param, validate
 from truckrl.sim.geometry import rotate, to_local
 from truckrl.tasks.base import Task
 from truckrl.tasks.config import SENSOR_SCALE, TaskConfig
-from truckrl.tasks.goals import POSE_ERRORS, pose_errors, pose_success
+from truckrl.tasks.goals import POSE_ERRORS, PoseRewardConfig, pose_errors, pose_success
 from truckrl.tasks.schema import CategoryDim
 from truckrl.tasks.uturn.scene import INFO_KEYS, UTurnSceneConfig, generate_uturn_scenes
 from truckrl.tasks.uturn.start import (
@@ -79,20 +79,9 @@ INFO_STATE_KEY = "route"
 
 
 @dataclass
-class UTurnRewardConfig:
+class UTurnRewardConfig(PoseRewardConfig):
     """Reward weights (the paper's values) and the progress shaping (module doc)."""
 
-    progress: float = param(0.05, unit="1/m", doc="per metre of progress", source="paper")
-    tractor_heading: float = param(
-        0.5, unit="1/rad", doc="per radian of tractor heading correction", source="paper"
-    )
-    trailer_heading: float = param(
-        0.5, unit="1/rad", doc="per radian of trailer heading correction", source="paper"
-    )
-    time: float = param(0.0, unit="1/step", doc="every step", source="paper")
-    success: float = param(5.0, doc="on success", source="paper")
-    collision: float = param(-7.0, doc="on collision or jack-knife", source="paper")
-    timeout: float = param(-8.0, doc="on timeout", source="paper")
     shaping: str = param(
         "route",
         choices=("goal", "route"),
