@@ -35,7 +35,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pytest
 import torch
 
 from truckrl.sim.lidar import SweepLidar, lidar_oracle, lidar_scan
@@ -193,10 +192,10 @@ def random_segment_scenes(n: int, e: int, seed: int):
     return origin.astype(f32), heading.astype(f32), segs.astype(f32), mask
 
 
-def scan(origin, heading, segs, mask, rel, method, dtype=torch.float32) -> np.ndarray:
+def scan(origin, heading, segs, mask, rel, dtype=torch.float32) -> np.ndarray:
     t = lambda x: torch.as_tensor(np.asarray(x)).to(dtype)  # noqa: E731
     m = None if mask is None else torch.as_tensor(mask)
-    out = lidar_scan(t(origin), t(heading), t(segs), m, t(rel), MAX_RANGE, method=method)
+    out = lidar_scan(t(origin), t(heading), t(segs), m, t(rel), MAX_RANGE)
     return out.double().numpy()
 
 
@@ -219,10 +218,9 @@ def test_issue_example_grazing_beam():
     # the beam runs along the segment, 0.4-0.9 um beside it: it grazes it from 6.679 m on
     assert exact[0, 15] == MAX_RANGE and late[0, 15] == MAX_RANGE
     assert abs(first[0, 15] - 6.67936) < 1e-4 and abs(bw[0, 15, 0] - 13.49849) < 1e-4
-    for method in ("dense", "span"):
-        got = scan(origin, heading, seg, None, rel, method)
-        assert accepted(got, bounds).all(), method
-        assert abs(got[0, 15] - 6.67936) <= 1e-3, (method, got[0, 15])  # was 14.0
+    got = scan(origin, heading, seg, None, rel)
+    assert accepted(got, bounds).all()
+    assert abs(got[0, 15] - 6.67936) <= 1e-3, got[0, 15]
     ref = lidar_oracle(
         torch.tensor(origin[0]),
         float(heading[0]),
@@ -234,11 +232,10 @@ def test_issue_example_grazing_beam():
     assert abs(ref[15].item() - 6.67936) <= 1e-3  # the oracle judges float32 inputs alike
 
 
-@pytest.mark.parametrize("method", ["dense", "span"])
-def test_near_parallel_beams_float32(method):
+def test_near_parallel_beams_float32():
     origin, heading, segs, rel, beam, _ = near_parallel_cases(20_000, seed=1)
     bounds = oracle_bounds(origin, heading, segs, None, rel)
-    got = scan(origin, heading, segs, None, rel, method)
+    got = scan(origin, heading, segs, None, rel)
     ok = accepted(got, bounds)
     bad = np.flatnonzero(~ok.all(-1))
     assert bad.size == 0, f"{bad.size} scenes, e.g. scene {bad[:5]}: {got[bad[:1]]}"
@@ -261,12 +258,11 @@ def test_near_parallel_beams_oracle_and_sweep():
         assert accepted(got, bounds).all(), name
 
 
-@pytest.mark.parametrize("method", ["dense", "span"])
-def test_general_beams_float32(method):
+def test_general_beams_float32():
     origin, heading, segs, mask = random_segment_scenes(1500, 24, seed=3)
     rel = beam_layout(16, 2 * math.pi)
     bounds = oracle_bounds(origin, heading, segs, mask, rel)
-    got = scan(origin, heading, segs, mask, rel, method)
+    got = scan(origin, heading, segs, mask, rel)
     assert accepted(got, bounds).all()
     exact = bounds[0]
     assert (exact < MAX_RANGE).mean() > 0.5
@@ -281,20 +277,5 @@ def test_wall_three_radian_seven_beams():
     zero = np.zeros((1, 2), np.float32)
     want = 1.0 / np.cos(rel.astype(np.float64))  # 14.14, 1.85, 1.14, 1, 1.14, 1.85, 14.14
     for dtype in (torch.float32, torch.float64):
-        for method in ("dense", "span"):
-            got = scan(zero, np.zeros(1, np.float32), wall, None, rel, method, dtype)[0]
-            np.testing.assert_allclose(got, want, atol=1e-4, err_msg=f"{method} {dtype}")
-
-
-@pytest.mark.parametrize("fov", [3.0, math.pi, 1.0, 2 * math.pi])
-@pytest.mark.parametrize("num_beams", [7, 16])
-def test_span_matches_dense_any_fov(fov, num_beams):
-    origin, heading, segs, mask = random_segment_scenes(400, 24, seed=num_beams)
-    rel = beam_layout(num_beams, fov)
-    bounds = oracle_bounds(origin, heading, segs, mask, rel)
-    assert (bounds[0] < MAX_RANGE).mean() > 0.3
-    for dtype in (torch.float32, torch.float64):
-        dense = scan(origin, heading, segs, mask, rel, "dense", dtype)
-        span = scan(origin, heading, segs, mask, rel, "span", dtype)
-        assert np.abs(span - dense).max() <= 1e-5, dtype
-        assert accepted(span, bounds).all(), dtype
+        got = scan(zero, np.zeros(1, np.float32), wall, None, rel, dtype)[0]
+        np.testing.assert_allclose(got, want, atol=1e-4, err_msg=str(dtype))

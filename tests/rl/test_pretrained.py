@@ -106,3 +106,20 @@ def test_the_shipped_uturn_policy_loads_and_turns_round():
     # an untrained policy turns none of these round (it needs a reverse leg); the shipped one
     # 7 of 8 (82.2 % of 1,000 unseen scenes; uturn/pretrained.md)
     assert int(results["success"].sum()) >= 6
+
+
+def test_retired_config_fields_load_or_say_what_was_removed():
+    """A saved config from before a field was removed loads without it when its value is what
+    the code does now, and is one line naming the field when it is not."""
+    import yaml
+
+    from truckrl.rl.checkpoint import CheckpointError
+    from truckrl.rl.policy import saved_config
+
+    def state(env: dict) -> dict:
+        return {"config": yaml.safe_dump({"env": env, "train_env": {}}), "path": "old.pt"}
+
+    old = {"lidar": {"num_beams": 16, "method": "dense"}, "task": {"name": "x", "reach_slack": 2}}
+    assert saved_config(state(old))["env"] == {"lidar": {"num_beams": 16}, "task": {"name": "x"}}
+    with pytest.raises(CheckpointError, match=r"old.pt: env.lidar.method = 'span' was removed"):
+        saved_config(state({"lidar": {"method": "span"}}))

@@ -11,7 +11,6 @@ from truckrl.config.fields import ConfigError
 from truckrl.sim.compiled import compile_sim
 from truckrl.sim.geometry import rectangle_segments
 from truckrl.sim.lidar import (
-    METHODS,
     LidarConfig,
     SweepLidar,
     beam_angles,
@@ -71,10 +70,9 @@ def oracle_batch(origin, heading, segments, mask, rel) -> torch.Tensor:
 
 
 def all_methods(origin, heading, segments, mask, rel) -> dict[str, torch.Tensor]:
-    """Sweep (fresh per env) and each batched method, ``[N, R]`` each."""
+    """Sweep (fresh per env) and the batched scan, ``[N, R]`` each."""
     out = {
-        m: lidar_scan(origin, heading, segments, mask, rel.to(segments.dtype), MAX_RANGE, method=m)
-        for m in METHODS
+        "batched": lidar_scan(origin, heading, segments, mask, rel.to(segments.dtype), MAX_RANGE)
     }
     sweeps = []
     for i in range(origin.shape[0]):
@@ -106,7 +104,6 @@ def test_config_defaults_and_errors():
         ("fov", 0.0),
         ("fov", 7.0),
         ("max_range", -1.0),
-        ("method", "raster"),
     ]:
         with pytest.raises(ConfigError, match=f"lidar.{field}"):
             LidarConfig(**{field: bad})
@@ -165,18 +162,11 @@ def _check_hand_case(origin, heading, segments, rel, want, mask=None):
         "oracle": lidar_oracle(o, float(h), s, m, rel, MAX_RANGE),
         "sweep": SweepLidar(rel, MAX_RANGE)(o, float(h), s, m),
     }
-    for method in METHODS:
-        mb = None if m is None else m[None]
-        got[method] = lidar_scan(o[None], h[None], s[None], mb, rel, MAX_RANGE, method=method)[0]
-        got[method + "/f32"] = lidar_scan(
-            o[None].float(),
-            h[None].float(),
-            s[None].float(),
-            mb,
-            rel.float(),
-            MAX_RANGE,
-            method=method,
-        )[0]
+    mb = None if m is None else m[None]
+    got["batched"] = lidar_scan(o[None], h[None], s[None], mb, rel, MAX_RANGE)[0]
+    got["batched/f32"] = lidar_scan(
+        o[None].float(), h[None].float(), s[None].float(), mb, rel.float(), MAX_RANGE
+    )[0]
     for name, g in got.items():
         assert torch.allclose(g.to(F64), w, atol=TOL), f"{name}: {g.tolist()} != {want}"
 
@@ -281,15 +271,12 @@ def test_float32_batched_close_to_float64_oracle():
     origin, heading = origin.view(-1, 2), heading.view(-1)
     rel = beam_angles(16, dtype=F64)
     want = oracle_batch(origin, heading, seg_f, None, rel)
-    for m in METHODS:
-        got = lidar_scan(
-            origin.float(), heading.float(), seg_f.float(), None, rel.float(), MAX_RANGE, method=m
-        )
-        assert got.dtype == torch.float32
-        err = (got.to(F64) - want).abs()
-        # float32 round-off on coordinates and directions; grazing rays amplify it
-        assert err.max() <= 1e-3, m
-        assert (err <= TOL).float().mean() >= 0.999, m
+    got = lidar_scan(origin.float(), heading.float(), seg_f.float(), None, rel.float(), MAX_RANGE)
+    assert got.dtype == torch.float32
+    err = (got.to(F64) - want).abs()
+    # float32 round-off on coordinates and directions; grazing rays amplify it
+    assert err.max() <= 1e-3
+    assert (err <= TOL).float().mean() >= 0.999
 
 
 def test_batched_leading_dims_and_no_segments():
@@ -297,15 +284,14 @@ def test_batched_leading_dims_and_no_segments():
     segs = grid_rectangles(6, 5, g).view(2, 3, 20, 4)
     origin, heading = free_poses(segs.view(6, 20, 4), 1, g)
     rel = beam_angles(16, dtype=F64)
-    for m in METHODS:
-        got = lidar_scan(origin.view(2, 3, 2), heading.view(2, 3), segs, None, rel, MAX_RANGE, m)
-        want = oracle_batch(origin.view(6, 2), heading.view(6), segs.view(6, 20, 4), None, rel)
-        assert got.shape == (2, 3, 16)
-        assert torch.allclose(got.view(6, 16), want, atol=TOL)
-        empty = lidar_scan(
-            origin.view(6, 2), heading.view(6), segs.view(6, 20, 4)[:, :0], None, rel, MAX_RANGE, m
-        )
-        assert (empty == MAX_RANGE).all() and empty.shape == (6, 16)
+    got = lidar_scan(origin.view(2, 3, 2), heading.view(2, 3), segs, None, rel, MAX_RANGE)
+    want = oracle_batch(origin.view(6, 2), heading.view(6), segs.view(6, 20, 4), None, rel)
+    assert got.shape == (2, 3, 16)
+    assert torch.allclose(got.view(6, 16), want, atol=TOL)
+    empty = lidar_scan(
+        origin.view(6, 2), heading.view(6), segs.view(6, 20, 4)[:, :0], None, rel, MAX_RANGE
+    )
+    assert (empty == MAX_RANGE).all() and empty.shape == (6, 16)
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
@@ -314,18 +300,16 @@ def test_batched_cuda_matches_cpu():
     segs = grid_rectangles(50, 12, g).float()
     origin, heading = free_poses(segs, 1, g)
     rel = beam_angles(16)
-    for m in METHODS:
-        cpu = lidar_scan(origin[:, 0].float(), heading[:, 0].float(), segs, None, rel, MAX_RANGE, m)
-        gpu = lidar_scan(
-            origin[:, 0].float().cuda(),
-            heading[:, 0].float().cuda(),
-            segs.cuda(),
-            None,
-            rel.cuda(),
-            MAX_RANGE,
-            m,
-        )
-        assert torch.allclose(gpu.cpu(), cpu, atol=1e-3)
+    cpu = lidar_scan(origin[:, 0].float(), heading[:, 0].float(), segs, None, rel, MAX_RANGE)
+    gpu = lidar_scan(
+        origin[:, 0].float().cuda(),
+        heading[:, 0].float().cuda(),
+        segs.cuda(),
+        None,
+        rel.cuda(),
+        MAX_RANGE,
+    )
+    assert torch.allclose(gpu.cpu(), cpu, atol=1e-3)
 
 
 # --- the sweep's kept event order -----------------------------------------------------------

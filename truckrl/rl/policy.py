@@ -35,8 +35,39 @@ class LoadedPolicy:
     counters: dict
 
 
+#: Config fields that were removed, under ``env`` and ``train_env``, with the values that meant
+#: what the code does now (``None``: any value, the field no longer changes anything). A saved
+#: config holding one of them loads without the field, so older runs still resume and play.
+RETIRED_FIELDS: dict[tuple[str, ...], tuple[Any, ...] | None] = {
+    ("lidar", "method"): ("dense",),  # the one batched LiDAR left
+    ("task", "reach_slack"): None,  # read only by the uturn path shaping, which was removed
+}
+
+
+def _drop_retired(data: dict[str, Any], path: Path | str) -> None:
+    """Remove :data:`RETIRED_FIELDS` from a saved config in place.
+
+    Raises:
+        CheckpointError: a retired field holds a value whose behaviour no longer exists.
+    """
+    for root in ("env", "train_env"):
+        for keys, allowed in RETIRED_FIELDS.items():
+            node = data.get(root)
+            for k in keys[:-1]:
+                node = node.get(k) if isinstance(node, dict) else None
+            if not isinstance(node, dict) or keys[-1] not in node:
+                continue
+            value = node.pop(keys[-1])
+            if allowed is not None and value not in allowed:
+                dotted = ".".join((root, *keys))
+                raise CheckpointError(
+                    f"{path}: {dotted} = {value!r} was removed (only {list(allowed)} remains)"
+                )
+
+
 def saved_config(state: dict[str, Any]) -> dict[str, Any]:
-    """The training config saved in a checkpoint, as a plain mapping."""
+    """The training config saved in a checkpoint, as a plain mapping (retired fields dropped,
+    :data:`RETIRED_FIELDS`)."""
     try:
         data = yaml.safe_load(state["config"])
     except yaml.YAMLError as e:
@@ -44,6 +75,7 @@ def saved_config(state: dict[str, Any]) -> dict[str, Any]:
         raise CheckpointError(f"{state['path']}: saved config is not YAML ({first})") from None
     if not isinstance(data, dict):
         raise CheckpointError(f"{state['path']}: saved config is not a mapping")
+    _drop_retired(data, state["path"])
     return data
 
 

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from truckrl.config.fields import ConfigError, check_choice, param, validate
+from truckrl.config.fields import ConfigError, param, validate
 from truckrl.sim.geometry import (
     RAY_TOLERANCE_ULPS,
     point_segment_distance,
@@ -40,9 +40,6 @@ from truckrl.sim.geometry import (
     segments_to_local,
     unit_vectors,
 )
-
-#: Values of ``LidarConfig.method``: the one batched form (the field stays while callers pass it).
-METHODS: tuple[str, ...] = ("dense",)
 
 #: Angular padding [rad] added to both ends of a segment's interval before deciding which beams
 #: may hit it. Extra candidates cost a little work; a missing one costs a wrong range, so the
@@ -83,9 +80,6 @@ class LidarConfig:
         unit="m",
         doc="range returned when nothing is hit",
         source="paper",
-    )
-    method: str = param(
-        "dense", choices=METHODS, unit="-", doc="batched implementation of lidar_scan (one)"
     )
 
     def __post_init__(self) -> None:
@@ -311,7 +305,6 @@ def lidar_scan(
     mask: Tensor | None,
     rel_angles: Tensor,
     max_range: float,
-    method: str = "dense",
 ) -> Tensor:
     """Batched LiDAR for all envs at once: one set of tensor ops, CPU or CUDA, no host sync.
 
@@ -323,12 +316,10 @@ def lidar_scan(
         rel_angles: ``[R]`` beam directions relative to the heading [rad], ascending in
             ``[-pi, pi)`` as :func:`beam_angles` makes them.
         max_range: [m].
-        method: ``"dense"``, the one form (every ray x every segment; ``LidarConfig.method``).
 
     Returns:
         ``[..., R]`` first-hit distances [m], exactly ``max_range`` where nothing is hit.
     """
-    check_choice("lidar.method", method, METHODS)
     # Segments in the sensor frame: rays then share their [R] directions across envs and the
     # float32 subtraction of large world coordinates happens once per vertex, not per pair.
     ends = segments_to_local(segments, origin, heading)  # 4 x [..., E]

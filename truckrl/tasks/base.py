@@ -301,7 +301,6 @@ class Task:
             s["mask"],
             self.rel_angles,
             lidar.max_range,
-            lidar.method,
         )
 
     def transition(
