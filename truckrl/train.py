@@ -78,16 +78,6 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     return trainer.counters
 
 
-def __getattr__(name: str) -> Any:
-    """``truckrl.train.bc_weight``: now :func:`truckrl.rl.trainer.bc_weight`, loaded on first use
-    (a module-level import would load torch before ``--help`` answers)."""
-    if name == "bc_weight":
-        from truckrl.rl.trainer import bc_weight
-
-        return bc_weight
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
     """Plan the session (run dir, resume or branch; :func:`~truckrl.rl.session.plan_session`)
     and train; ``tc.resume``'s checkpoint supplies the config but for ``RESUME_OVERRIDES``."""

@@ -273,7 +273,7 @@ def test_cloning_weight_falls_linearly_to_zero():
     from tests.conftest import compose_config
     from truckrl.cli import to_config
     from truckrl.config.schemas import DemosConfig, TrainConfig
-    from truckrl.train import bc_weight
+    from truckrl.rl.trainer import bc_weight
 
     dc = DemosConfig(bc_coeff=2.0, bc_frames=1_000)
     weights = [bc_weight(dc, f) for f in (0, 250, 500, 1_000, 5_000)]
