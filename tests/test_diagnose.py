@@ -9,7 +9,7 @@ import torch
 from tests.rl.test_uturn_driver import FIXED_TRUCK
 from truckrl.sim.collision import touching
 from truckrl.tasks import EnvConfig
-from truckrl.tasks.uturn.diagnosis import diagnose_uturn, summarize_diagnosis, trailer_depth
+from truckrl.tasks.uturn.diagnosis import diagnose, summarize_diagnosis, trailer_depth
 from truckrl.tasks.uturn.scene import DEAD_END_SLOT, SEGMENT_NAMES
 from truckrl.tools.diagnose import main
 
@@ -76,7 +76,7 @@ def test_a_straight_drive_is_recorded_as_it_must_end():
     round or enters the branch; in a dead end it hits the dead-end wall with its tractor (and
     nothing else), on the open road it times out."""
     cfg = EnvConfig(task={"name": "uturn", "start": {"enabled": False}}, max_steps=300)
-    d = diagnose_uturn(full_ahead, cfg, difficulty=4.0, episodes=24, seed=3)
+    d = diagnose(full_ahead, cfg, difficulty=4.0, episodes=24, seed=3)
     from truckrl.env import TruckEnv
 
     env = TruckEnv(num_envs=24, config=cfg, seed=3)
@@ -119,3 +119,18 @@ def test_cli_finds_the_diagnosis_of_the_checkpoints_task(capsys, tmp_path):
     out = tmp_path / "rows.json"
     assert main(["checkpoint=pretrained:uturn", "episodes=2", f"out={out}"]) == 0
     assert "pretrained" in capsys.readouterr().out and out.is_file()
+
+
+def test_a_diagnosis_without_the_whole_contract_is_one_line(tmp_path, monkeypatch):
+    """A task folder outside the package (dotted name) whose diagnosis.py lacks two functions."""
+    from truckrl.config.fields import ConfigError
+    from truckrl.tools.diagnose import diagnosis_module
+
+    folder = tmp_path / "mypkg" / "half"
+    folder.mkdir(parents=True)
+    for d in (folder.parent, folder):
+        (d / "__init__.py").write_text("")
+    (folder / "diagnosis.py").write_text("def diagnose(*a):\n    return {}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(ConfigError, match=r"mypkg.half.diagnosis lacks summarize_diagnosis\(\), "):
+        diagnosis_module("mypkg.half", "ckpt")

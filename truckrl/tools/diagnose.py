@@ -4,7 +4,7 @@
 
 Runs the checkpoint's mean action on the scenes that ``truckrl eval episodes=N seed=S`` scores
 and prints the rows of ``truckrl/tasks/<task>/diagnosis.py`` (the checkpoint's task): its
-``diagnose`` (or ``diagnose_<task>``), ``summarize_diagnosis`` and ``format_diagnosis``.
+``diagnose``, ``summarize_diagnosis`` and ``format_diagnosis``.
 ``out=FILE`` also writes the rows as JSON. A task without a diagnosis, and any other bad input,
 prints one line and exits with code 2.
 """
@@ -40,23 +40,35 @@ class DiagnoseConfig:
             raise ConfigError("checkpoint is required: checkpoint=<file, run dir or pretrained>")
 
 
+#: What a task folder's ``diagnosis.py`` provides: ``diagnose(actor, env_cfg, difficulty, episodes,
+#: seed) -> {key: [E] tensor}``, ``summarize_diagnosis(d) -> rows`` and ``format_diagnosis(rows)``.
+CONTRACT = ("diagnose", "summarize_diagnosis", "format_diagnosis")
+
+
 def diagnosis_module(task: str, checkpoint: str):
-    """``truckrl.tasks.<task>.diagnosis`` (a dotted task: ``<task>.diagnosis``).
+    """``<task package>.diagnosis``, which provides :data:`CONTRACT`.
 
     Raises:
-        ConfigError: the task has no diagnosis module.
+        ConfigError: the task has no diagnosis module, or it lacks a function of the contract.
     """
     import importlib
 
-    name = f"{task}.diagnosis" if "." in task else f"truckrl.tasks.{task}.diagnosis"
+    from truckrl.tasks.registry import task_package
+
+    name = f"{task_package(task)}.diagnosis"
     try:
-        return importlib.import_module(name)
+        module = importlib.import_module(name)
     except ModuleNotFoundError as e:
         if e.name is None or not name.startswith(e.name):
             raise  # the module exists but something it imports is missing
         raise ConfigError(
             f"checkpoint = {checkpoint!r}: its task {task!r} has no diagnosis ({name})"
         ) from None
+    missing = [f for f in CONTRACT if not callable(getattr(module, f, None))]
+    if missing:
+        lacks = ", ".join(f"{f}()" for f in missing)
+        raise ConfigError(f"{name} lacks {lacks} (a diagnosis provides {', '.join(CONTRACT)})")
+    return module
 
 
 def run(cfg: DiagnoseConfig) -> list[dict]:
@@ -71,9 +83,8 @@ def run(cfg: DiagnoseConfig) -> list[dict]:
     policy = load_policy(cfg.checkpoint)
     task = policy.env_config.task.name
     module = diagnosis_module(task, cfg.checkpoint)
-    diagnose = getattr(module, "diagnose", None) or getattr(module, f"diagnose_{task}")
     difficulty = policy.difficulty if cfg.difficulty is None else cfg.difficulty
-    d = diagnose(policy.actor, policy.env_config, difficulty, cfg.episodes, cfg.seed)
+    d = module.diagnose(policy.actor, policy.env_config, difficulty, cfg.episodes, cfg.seed)
     rows = module.summarize_diagnosis(d)
     print(f"{policy.path}: {cfg.episodes} scenes (seed {cfg.seed}) at difficulty {difficulty:g}")
     print(module.format_diagnosis(rows))

@@ -32,7 +32,7 @@ from truckrl.sim.vehicle import trailer_axle
 from truckrl.tasks import EnvConfig
 from truckrl.tasks.uturn.scene import SEGMENT_NAMES
 
-#: Outcome codes of :func:`diagnose_uturn`'s ``outcome`` entry.
+#: Outcome codes of :func:`diagnose`'s ``outcome`` entry.
 OUTCOME_NAMES = ("timeout", "success", "collision", "jack-knife")
 
 
@@ -47,7 +47,7 @@ def trailer_depth(pose: Tensor, params: dict[str, Tensor], info: dict[str, Tenso
 
 
 @torch.no_grad()
-def diagnose_uturn(
+def diagnose(
     actor: Any,
     env_cfg: EnvConfig,
     difficulty: float,
