@@ -1,7 +1,7 @@
-"""``python -m truckrl.export``: a trained policy as a standalone ONNX or TorchScript model.
+"""``truckrl export``: a trained policy as a standalone ONNX or TorchScript model.
 
-    python -m truckrl.export checkpoint=outputs/DATE/TIME                      # -> <run>/export/policy.onnx
-    python -m truckrl.export checkpoint=outputs/DATE/TIME format=torchscript out=policy.pt
+    truckrl export checkpoint=outputs/DATE/TIME                      # -> <run>/export/policy.onnx
+    truckrl export checkpoint=outputs/DATE/TIME format=torchscript out=policy.pt
 
 The exported model is the deterministic actor: ``(observation [B, 26], lidar [B, R]) -> action
 [B, 2]``, float32, any batch size B. The action is the **raw mean of the Gaussian policy**, not
@@ -62,7 +62,7 @@ CARD_KEY = "truckrl"
 
 @dataclass
 class ExportConfig:
-    """``python -m truckrl.export``: write a checkpoint's deterministic actor to a file."""
+    """``truckrl export``: write a checkpoint's deterministic actor to a file."""
 
     checkpoint: str | None = param(None, doc="checkpoint file or run dir (required)")
     format: str = param("onnx", choices=FORMATS, doc="onnx | torchscript")

@@ -1,10 +1,10 @@
-"""``python -m truckrl.play``: drive the truck with the keyboard or watch a policy.
+"""``truckrl play``: drive the truck with the keyboard or watch a policy.
 
-    python -m truckrl.play                                   # keyboard, paper controls
-    python -m truckrl.play control=speed_angle seed=3 difficulty=2
-    python -m truckrl.play checkpoint=outputs/2025-01-01/12-00-00      # watch a policy (M: take over)
-    python -m truckrl.play headless=true checkpoint=<run> record=run.mp4   # no window: to video
-    python -m truckrl.play headless=true actions=docs/play_keys.txt strip=docs/play_strip.png
+    truckrl play                                   # keyboard, paper controls
+    truckrl play control=speed_angle seed=3 difficulty=2
+    truckrl play checkpoint=outputs/2025-01-01/12-00-00      # watch a policy (M: take over)
+    truckrl play headless=true checkpoint=<run> record=run.mp4   # no window: to video
+    truckrl play headless=true actions=docs/play_keys.txt strip=docs/play_strip.png
 
 One frame loop (:func:`truckrl.viewer.runner.run_loop` over a :class:`~truckrl.viewer.runner.Runner`) serves every way of driving: an *action
 source* turns the current observation and the held keys into the env action; the keyboard

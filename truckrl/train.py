@@ -1,8 +1,8 @@
-"""``python -m truckrl.train``: PPO on TruckEnv with the success curriculum (the paper's setup).
+"""``truckrl train``: PPO on TruckEnv with the success curriculum (the paper's setup).
 
-    python -m truckrl.train                                # experiment=demos (CPU), paper curriculum
-    python -m truckrl.train resume=outputs/2025-01-01/12-00-00        # continue a stopped run
-    python -m truckrl.train --help                                    # options and examples
+    truckrl train                                         # experiment=demos (CPU), paper curriculum
+    truckrl train resume=outputs/2025-01-01/12-00-00      # continue a stopped run
+    truckrl train --help                                  # options and examples
 
 The loop is a :class:`~truckrl.rl.trainer.Trainer`: each iteration collects ``collector.workers
 x num_envs x steps_per_env`` frames, feeds finished episodes to the curriculum in start order

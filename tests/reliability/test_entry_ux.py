@@ -69,8 +69,8 @@ def test_last_lines_say_why_where_and_what_next(overrides, reason, tmp_path, cap
     i = next(i for i, ln in enumerate(lines) if ln.startswith("stopped"))
     assert lines[i].startswith(f"stopped: {reason} at iteration")
     assert lines[i + 1] == f"run dir: {tmp_path} (checkpoint {tmp_path}/checkpoints/last.pt)"
-    assert lines[i + 2] == f"evaluate: python -m truckrl.evaluate checkpoint={tmp_path}"
-    assert lines[i + 3] == f"play: python -m truckrl.play checkpoint={tmp_path}"
+    assert lines[i + 2] == f"evaluate: truckrl eval checkpoint={tmp_path}"
+    assert lines[i + 3] == f"play: truckrl play checkpoint={tmp_path}"
     assert lines[i + 4] == f"tensorboard: tensorboard --logdir {tmp_path}/tb"
     assert load_checkpoint(tmp_path)  # the checkpoint the lines name exists
 
@@ -80,7 +80,7 @@ def test_signal_stop_line_is_one_line(monkeypatch):
     lines = stop_lines("SIGTERM", ROOT / "outputs" / "x", 3, 768, 0.2, 1.5)
     assert lines == [
         "stopped by SIGTERM at iteration 3, 768 frames, 0.2 min, difficulty 1.5; checkpoint "
-        "outputs/x/checkpoints/last.pt; resume: python -m truckrl.train resume=outputs/x"
+        "outputs/x/checkpoints/last.pt; resume: truckrl train resume=outputs/x"
     ]
 
 

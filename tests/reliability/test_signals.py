@@ -57,7 +57,7 @@ def test_signal_at_a_random_moment_saves_a_consistent_checkpoint(
     assert s["iteration"] == counters.iteration
     stop = [r.getMessage() for r in caplog.records if r.getMessage().startswith("stopped")]
     assert len(stop) == 1 and stop[0].startswith(f"stopped by {sig}"), stop
-    assert f"resume: python -m truckrl.train resume={tmp_path}" in stop[0]
+    assert f"resume: truckrl train resume={tmp_path}" in stop[0]
     assert str(tmp_path / "checkpoints" / "last.pt") in stop[0]
     assert signal.getsignal(signal.SIGINT) is before  # handlers restored
 

@@ -1,9 +1,9 @@
-"""``python -m truckrl.bench <benchmark> [KEY=VALUE ...]``: dispatch to one benchmark module.
+"""``truckrl bench <benchmark> [KEY=VALUE ...]``: dispatch to one benchmark module.
 
 A benchmark is a module under ``truckrl.bench`` listed in :data:`BENCHMARKS`, exposing
 ``parse(argv)`` (``KEY=VALUE`` arguments into its options, :func:`truckrl.cli.key_value_config`;
 bad input is one line, exit 2, before any work) and ``run(options)``; its docstring's first line
-is its one-line description. ``python -m truckrl.bench <benchmark> --help`` lists its keys.
+is its one-line description. ``truckrl bench <benchmark> --help`` lists its keys.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ BENCHMARKS: dict[str, str] = {
     "env": "truckrl.bench.env",
     "train": "truckrl.bench.train",
 }
-PROG = "python -m truckrl.bench"
+PROG = "truckrl bench"
 
 
 def _available() -> dict[str, ModuleType]:

@@ -58,7 +58,7 @@ SCALING_QUICK = {"envs": [1, 16, 64], "beams": [16, 32], "obstacles": [0, 4], "r
 
 @dataclass
 class EnvBenchConfig:
-    """``python -m truckrl.bench env``'s keys."""
+    """``truckrl bench env``'s keys."""
 
     quick: bool = param(
         False, doc="a short run: eager only, N = 1 and 256, no ParallelEnv or paper rows "
@@ -106,7 +106,7 @@ def parse(argv: list[str]) -> EnvBenchConfig:
     one line, exit 2, before any work."""
     from truckrl.cli import fail, key_value_config
 
-    args = key_value_config(EnvBenchConfig, argv, "python -m truckrl.bench env", __doc__)
+    args = key_value_config(EnvBenchConfig, argv, "truckrl bench env", __doc__)
     if args.quick:
         given = {a.partition("=")[0] for a in argv}
         for k, v in QUICK.items():

@@ -40,7 +40,7 @@ TARGETS = {
 
 @dataclass
 class LidarBenchConfig:
-    """``python -m truckrl.bench lidar``'s keys (an empty list: the default grid)."""
+    """``truckrl bench lidar``'s keys (an empty list: the default grid)."""
 
     quick: bool = param(False, doc="small grid and budgets")
     beams: tuple[int, ...] = param(
@@ -70,7 +70,7 @@ def parse(argv: list[str]) -> LidarBenchConfig:
     """``KEY=VALUE`` arguments into :class:`LidarBenchConfig`; bad input: one line, exit 2."""
     from truckrl.cli import fail, key_value_config
 
-    args = key_value_config(LidarBenchConfig, argv, "python -m truckrl.bench lidar", __doc__)
+    args = key_value_config(LidarBenchConfig, argv, "truckrl bench lidar", __doc__)
     try:
         torch.device(args.device)
     except (RuntimeError, TypeError):

@@ -1,4 +1,4 @@
-"""Peer simulators for ``python -m truckrl.bench env --peers``: VMAS with the closest scene it has.
+"""Peer simulators for ``truckrl bench env --peers``: VMAS with the closest scene it has.
 
 VMAS (``pip install 'truckrl[bench]'``, tested with 1.5.2) is a batched PyTorch 2-D robot
 simulator. Its closest scenario to ours, written here (:func:`vmas_scenario`):

@@ -1,7 +1,7 @@
 """Training-iteration profile: frames/s and where one PPO iteration's time goes.
 
 Times the real :meth:`Trainer.iterate <truckrl.rl.trainer.Trainer.iterate>` (what ``python -m
-truckrl.train`` runs) on the ``train`` config composed as ``python -m truckrl.train`` composes
+truckrl.train`` runs) on the ``train`` config composed as ``truckrl train`` composes
 it, in a temporary run dir. The arguments are all ``KEY=VALUE``: the keys below are this
 benchmark's own; every other one is a Hydra override of the training config, as for ``python -m
 truckrl.train`` (``collector.num_envs=256``, ``experiment=paper``, ``seed=1``, ``device=cuda``).
@@ -65,7 +65,7 @@ _PPO_SPANS = {"gae": "gae_s", "loss_forward": "loss_forward_s", "backward": "bac
 
 @dataclass
 class TrainBenchConfig:
-    """``python -m truckrl.bench train``'s own keys (every other key is a training override)."""
+    """``truckrl bench train``'s own keys (every other key is a training override)."""
 
     iterations: int = param(5, lo=1, hi=1e6, unit="iterations", doc="timed training iterations")
     warmup: int = param(
@@ -102,7 +102,7 @@ def parse(argv: list[str]) -> tuple[TrainBenchConfig, Any, list[str]]:
         key, sep, _ = arg.partition("=")
         mine = arg.startswith("-") or key in own_keys or not (sep or arg.startswith("~"))
         (own if mine else overrides).append(arg)
-    opts = key_value_config(TrainBenchConfig, own, "python -m truckrl.bench train", __doc__)
+    opts = key_value_config(TrainBenchConfig, own, "truckrl bench train", __doc__)
     if opts.quick:
         given = {a.partition("=")[0] for a in own}
         for k, v in QUICK.items():

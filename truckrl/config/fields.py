@@ -277,7 +277,7 @@ def validate(obj: Any, where: str = "") -> None:
 def spec_table(cls: type, where: str = "") -> list[tuple[str, str, str, str, str]]:
     """Rows ``(dotted name, default, unit, allowed, meaning)`` of ``cls`` and nested configs.
 
-    The docs print this table (``python -m truckrl.config.schemas``) instead of copying the defaults.
+    The docs print this table (``truckrl tools configs``) instead of copying the defaults.
     """
     rows = []
     for f in dataclasses.fields(cls):

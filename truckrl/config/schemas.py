@@ -2,7 +2,7 @@
 
 Every default lives in a dataclass field (:func:`truckrl.config.fields.param`: default, range,
 unit, meaning); YAML files under ``truckrl/conf/`` hold only presets that differ from them (``ppo/fast``,
-``experiment/*``, ``control/*``, ``curriculum/none``, ``launch/*``). ``python -m truckrl.config.schemas
+``experiment/*``, ``control/*``, ``curriculum/none``, ``launch/*``). ``truckrl tools configs
 [PREFIX]`` prints every field as a table (what the README's configuration section points to).
 
 Hydra groups (``register()``): ``task`` (one per task module, placed at ``env.task``), ``ppo``,
@@ -169,7 +169,7 @@ class DemosConfig:
 
 @dataclass
 class TrainConfig:
-    """``python -m truckrl.train``: everything a training run reads.
+    """``truckrl train``: everything a training run reads.
 
     A run ends on its own: at the paper's goal (``stop_difficulty`` 6: 0.47 m and 0.94 deg) or
     after ``max_minutes`` 60, whichever comes first. These are the dataclass defaults; the
@@ -243,7 +243,7 @@ class TrainConfig:
 
 @dataclass
 class EvaluateConfig:
-    """``python -m truckrl.evaluate``: deterministic evaluation of a checkpoint."""
+    """``truckrl eval``: deterministic evaluation of a checkpoint."""
 
     checkpoint: str | None = param(
         None, doc="checkpoint file or run dir (required with policy=checkpoint)"
@@ -285,7 +285,7 @@ ON_DONE = ("new", "same", "wait")
 
 @dataclass
 class PlayConfig:
-    """``python -m truckrl.play``: the viewer (keyboard, policy, replay or random driving)."""
+    """``truckrl play``: the viewer (keyboard, policy, replay or random driving)."""
 
     seed: int = param(0, lo=0, hi=SEED_MAX, doc="scene seed (as TruckEnv(seed=...))")
     device: str = param("cpu", doc="env and policy device")

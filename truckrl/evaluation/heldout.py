@@ -1,12 +1,12 @@
 """Held-out evaluation during training: a fixed set of scenes the run never trains on.
 
-Every ``log.eval_interval_min`` minutes of wall clock, ``python -m truckrl.train`` runs
+Every ``log.eval_interval_min`` minutes of wall clock, ``truckrl train`` runs
 :func:`~truckrl.evaluation.rollout.evaluate_policy` (mean action, one episode per scene, as
-``python -m truckrl.evaluate``) on ``log.eval_episodes`` scenes drawn from :data:`HELDOUT_SEED`
+``truckrl eval``) on ``log.eval_episodes`` scenes drawn from :data:`HELDOUT_SEED`
 at the current curriculum difficulty, and logs :func:`heldout_scalars` to TensorBoard:
 ``eval/<outcome>_rate`` overall and ``eval/<dimension>/<bin>/success`` per scene category
 (:mod:`truckrl.evaluation.categories`). The same scenes, for a checkpoint:
-``python -m truckrl.evaluate checkpoint=RUN_DIR seed=6949403065 episodes=200``.
+``truckrl eval checkpoint=RUN_DIR seed=6949403065 episodes=200``.
 """
 
 from __future__ import annotations

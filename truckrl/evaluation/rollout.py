@@ -155,7 +155,7 @@ def policy_actions(
 
     The sequence is open loop: replayed from the same start state through the deterministic
     simulator (``planner.replay``) it drives the same episode, which is how
-    ``python -m truckrl.plan --policy`` checks a policy's solutions with the planner's replay.
+    ``truckrl plan checkpoint=`` checks a policy's solutions with the planner's replay.
     """
     env_cfg = dataclasses.replace(env_cfg, compile=False)
     e = states.batch_size[0]

@@ -19,9 +19,9 @@ task's own scripted demonstrator, the ``demonstrations`` function of its folder'
 (looked up by task name, :func:`truckrl.planning.experts.scripted_demonstrations`; closed loop,
 successful episodes only).
 
-``python -m truckrl.tools.imitate`` wraps both and writes a training checkpoint that
-``python -m truckrl.train resume=<dir>`` continues; :func:`bootstrap` does the whole chain (plan,
-replay, clone) inside ``python -m truckrl.train demos.episodes=N``.
+``truckrl tools imitate`` wraps both and writes a training checkpoint that
+``truckrl train resume=<dir>`` continues; :func:`bootstrap` does the whole chain (plan,
+replay, clone) inside ``truckrl train demos.episodes=N``.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ run opens the same directory with ``purge_step`` = the checkpoint's frame count 
 drops whatever the killed run logged after its last checkpoint and the curves continue seamlessly.
 
 Videos: one deterministic episode (the policy's mean action, the same seeded scene every time)
-drawn by the viewer's renderer, so each frame is exactly what ``python -m truckrl.play
+drawn by the viewer's renderer, so each frame is exactly what ``truckrl play
 checkpoint=...`` shows: the whole scene
 with the start truck and the goal in view, the HUD panel and the outcome banner. The first video
 is recorded after the first iteration, then whenever ``log.video_interval`` iterations or

@@ -338,7 +338,7 @@ class PPO:
                 selection), "loss_forward" (minibatch indexing, loss and KL), "backward",
                 "optimizer" (learning-rate schedule, gradient clipping, Adam step) and "metrics"
                 (the sums and the final read-out). Synchronised on CUDA; the numbers computed are
-                the same with or without it (``python -m truckrl.bench train`` reads it).
+                the same with or without it (``truckrl bench train`` reads it).
 
         Returns:
             Means over all minibatches: "loss_objective", "loss_critic", "loss_entropy",

@@ -104,14 +104,14 @@ def stop_lines(
         f"iteration {iteration}, {frames:,} frames, {minutes:.1f} min, difficulty {difficulty:g}"
     )
     checkpoint = shown_path(run_dir / "checkpoints" / "last.pt")
-    resume = f"python -m truckrl.train resume={run}"
+    resume = f"truckrl train resume={run}"
     if reason.startswith("SIG"):
         return [f"stopped by {reason} at {where}; checkpoint {checkpoint}; resume: {resume}"]
     lines = [
         f"stopped: {REASONS.get(reason, reason)} at {where}",
         f"run dir: {run} (checkpoint {checkpoint})",
-        f"evaluate: python -m truckrl.evaluate checkpoint={run}",
-        f"play: python -m truckrl.play checkpoint={run}",
+        f"evaluate: truckrl eval checkpoint={run}",
+        f"play: truckrl play checkpoint={run}",
         f"tensorboard: tensorboard --logdir {shown_path(run_dir / 'tb')}",
     ]
     if reason == "time":  # max_minutes counts each session

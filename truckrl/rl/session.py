@@ -200,7 +200,7 @@ def reuse_refusal(run_dir: Path) -> ConfigError:
     """The error for starting a new run where a checkpoint already is."""
     return ConfigError(
         f"run dir {run_dir} already holds a checkpoint ({CHECKPOINT_DIR}/{LAST_NAME}): continue "
-        f"it with `python -m truckrl.train resume={run_dir}`, or start a new run in another dir "
+        f"it with `truckrl train resume={run_dir}`, or start a new run in another dir "
         "(hydra.run.dir=...) or here with overwrite=true (deletes its checkpoints and TensorBoard "
         "logs)"
     )

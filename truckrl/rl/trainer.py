@@ -1,7 +1,7 @@
 """One PPO training job as an object: :meth:`Trainer.setup`, then :meth:`Trainer.iterate` until
 :meth:`Trainer.stop_reason` names a reason, then :meth:`Trainer.close`.
 
-``python -m truckrl.train`` drives it (resume, signals, the last lines) and ``python -m
+``truckrl train`` drives it (resume, signals, the last lines) and ``python -m
 truckrl.bench train`` times the same :meth:`~Trainer.iterate`, so the benchmark measures what
 users run.
 

@@ -1,7 +1,7 @@
 """Configuration of the task core and of TruckEnv: every default is written here, once.
 
 The fields carry their range, unit and meaning (:func:`truckrl.config.fields.param`);
-``python -m truckrl.config.schemas`` prints them as a table. Hydra composes these dataclasses as
+``truckrl tools configs`` prints them as a table. Hydra composes these dataclasses as
 structured configs (:func:`truckrl.config.schemas.register`); YAML files only hold presets.
 """
 

@@ -1,7 +1,7 @@
 """Drawing (OpenCV, arrays only) and command-line pictures; never steps physics.
 
 ``truckrl.viz.draw`` renders scenes, trucks, goals and LiDAR into RGB arrays for the interactive
-viewer, training videos and ``python -m truckrl.viz.scenes``.
+viewer, training videos and ``truckrl tools scenes``.
 """
 
 from truckrl.viz.draw import COLORS, View, draw_scene, make_view, world_to_pixel

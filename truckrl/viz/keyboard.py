@@ -1,7 +1,7 @@
 """Keyboard driving without a window: held keys -> action, pressed keys -> viewer commands.
 
 Pure Python (no pygame): the window layer only reports key names, so everything here is testable
-and the same mapping drives scripted key files (``python -m truckrl.play actions=keys.txt``).
+and the same mapping drives scripted key files (``truckrl play actions=keys.txt``).
 
 Held keys (``w``, ``a``, ``s``, ``d``; the window also maps the arrow keys onto them) become the
 action ``[longitudinal, lateral]`` in ``[-1, 1]``, in the units of the configured control mode

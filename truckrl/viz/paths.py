@@ -3,7 +3,7 @@
 Pure drawing from states (:mod:`truckrl.viz.draw`): the poses come from an episode that ran
 elsewhere (``evaluate_policy(..., record_paths=True)``); the bodies are placed by
 :func:`truckrl.sim.vehicle.truck_corners`, as the viewer places them. Used by
-``python -m truckrl.tools.paths``.
+``truckrl tools paths``.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The pygame window of ``python -m truckrl.play``: shows RGB frames and reports keys.
+"""The pygame window of ``truckrl play``: shows RGB frames and reports keys.
 
 Deliberately thin: it turns pygame events into key names and the keyboard state into the set of
 held drive keys (:class:`truckrl.viz.keyboard.KeyInput`); what keys mean lives in

@@ -1,8 +1,8 @@
 """Where a ``uturn`` policy fails: its episodes split by branch side and outcome, how far each
 got through the manoeuvre, and what the collided trucks touched.
 
-``python -m truckrl.tools.diagnose`` prints it (:mod:`truckrl.tools.diagnose`). Every episode runs in the
-same seeded scenes as ``python -m truckrl.evaluate`` (same ``episodes`` and ``seed``), with the
+``truckrl tools diagnose`` prints it (:mod:`truckrl.tools.diagnose`). Every episode runs in the
+same seeded scenes as ``truckrl eval`` (same ``episodes`` and ``seed``), with the
 mean action. Per episode it records, from the env's state at every step:
 
 * ``pulled``: the truck pulled past the branch (the task's latched state entry);
