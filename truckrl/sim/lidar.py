@@ -369,12 +369,10 @@ def _fused_scan(
     ``4 x [..., E]`` (E > 0), then the minimum over segments. Eagerly, the same bits as
     :func:`_dense_scan`.
 
-    Two layouts decide the kernels inductor writes (the compiled env's transition at N = 1,024,
-    E = 56, R = 16: 1.2-1.4 ms against 1.6-1.8 ms with the earlier form):
+    Two layouts decide the kernels inductor writes:
 
     * the beam directions are materialised first (:func:`unit_vectors`). Inlined, the pair
-      kernel computed a vector cosine and sine of the beam angles for every segment (0.87 ms of
-      the step);
+      kernel would compute a cosine and sine of the beam angles for every segment;
     * the four coordinates are stacked coordinate-major, ``[4, ..., E]``: the rotated ends are
       written with contiguous stores and the pair test loads each coordinate as a vector.
     """

@@ -30,7 +30,7 @@ TURN_EDGES_DEG: tuple[float, ...] = (20.0, 70.0, 110.0, 180.0)
 CROSSING_EDGES_DEG: tuple[float, ...] = (45.0, 70.0, 110.0, 135.0)
 #: Trailer length [m] bins (front overhang + wheelbase + rear overhang). The outer edges span the
 #: default ``VehicleConfig`` range (0.9 + 6.0 + 1.0 = 7.9 to 1.6 + 11.0 + 3.5 = 16.1 m); the inner
-#: ones are about its terciles (the sum of three uniform draws: 11.15 and 12.84 m measured).
+#: ones are about the terciles of that sum of three uniform draws (11.15 and 12.84 m).
 TRAILER_LENGTH_EDGES_M: tuple[float, ...] = (7.9, 11.2, 12.8, 16.1)
 #: Road width [m] bins of the narrower of the start's and the goal's road (default 10-18 m).
 ROAD_WIDTH_EDGES_M: tuple[float, ...] = (10.0, 12.0, 14.0, 16.0, 18.0)
