@@ -153,72 +153,106 @@ def steps_per_second(env: EnvBase, steps: int, warmup: int) -> tuple[float, floa
 
 
 def run(args: EnvBenchConfig) -> dict:
+    """``truckrl bench env``: the throughput rows (or the scaling / peers sections), printed,
+    written as JSON; returns the summary."""
     t_start = time.perf_counter()
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.scaling or args.peers:
-        summary = {}
-        if args.scaling:
-            summary["scaling"] = run_scaling(args)
-        if args.peers:
-            summary["peers"] = run_peers(args)
-        summary["wall_s"] = time.perf_counter() - t_start
-        print(f"bench env took {summary['wall_s']:.1f} s" + (" (quick)" if args.quick else ""))
-        return summary
+        return _run_sections(args, t_start)
     modes = {"both": [False, True], "on": [True], "off": [False]}[args.compile]
-    rows = []
-
-    def record(layout, workers, per_worker, compiled, sps, warm):
-        rows.append(
-            {
-                "layout": layout,
-                "workers": workers,
-                "envs/worker": per_worker,
-                "trucks": workers * per_worker,
-                "compile": compiled,
-                "steps/s": sps,
-                "warmup_s": warm,
-            }
-        )
-        print(
-            f"  {layout:8s} W={workers:<3d} n={per_worker:<6d} compile={compiled!s:5s} "
-            f"{sps:12,.0f} steps/s",
-            flush=True,
-        )
-
-    paper_sps = None
-    if args.paper:
-        make = functools.partial(_make_env, 1, False, "cpu", args.seed)
-        penv = ParallelEnv(PAPER_WORKERS, make, mp_start_method="spawn")
-        try:
-            penv.set_seed(args.seed)
-            paper_sps, warm = steps_per_second(penv, args.steps, args.warmup)
-        finally:
-            penv.close()
-        record("paper", PAPER_WORKERS, 1, False, paper_sps, warm)
-
+    rows: list[dict] = []
+    paper_sps = _paper_row(args, rows) if args.paper else None
     for compiled in modes:
-        for n in args.envs:
-            env = _make_env(n, compiled, args.device, args.seed)
-            sps, warm = steps_per_second(env, args.steps, args.warmup)
-            record("batched", 1, n, compiled, sps, warm)
-        for total in args.parallel_envs:
-            per = max(1, total // args.workers)
-            make = functools.partial(_make_env, per, compiled, "cpu", args.seed)
-            penv = ParallelEnv(args.workers, make, mp_start_method="spawn")
-            try:
-                penv.set_seed(args.seed)
-                sps, warm = steps_per_second(penv, args.steps, args.warmup)
-            finally:
-                penv.close()
-            record("parallel", args.workers, per, compiled, sps, warm)
-
+        _throughput_rows(args, compiled, rows)
     if paper_sps:
         for r in rows:
             r["x paper"] = r["steps/s"] / paper_sps
     if args.collector:
         rows += _collector_rows(args, modes[-1])
+    return _summarize(args, rows, paper_sps, t_start)
 
+
+def _print_wall(args: EnvBenchConfig, summary: dict, t_start: float) -> None:
+    """Store the run's wall time (s) in ``summary["wall_s"]`` and print it."""
+    summary["wall_s"] = time.perf_counter() - t_start
+    print(f"bench env took {summary['wall_s']:.1f} s" + (" (quick)" if args.quick else ""))
+
+
+def _run_sections(args: EnvBenchConfig, t_start: float) -> dict:
+    """``scaling=true`` and/or ``peers=true``: those sections instead of the throughput rows;
+    returns ``{"scaling"?, "peers"?, "wall_s"}``."""
+    summary = {}
+    if args.scaling:
+        summary["scaling"] = run_scaling(args)
+    if args.peers:
+        summary["peers"] = run_peers(args)
+    _print_wall(args, summary, t_start)
+    return summary
+
+
+def _record(
+    rows: list[dict], layout: str, workers: int, per_worker: int, compiled: bool, sps, warm
+) -> None:
+    """Append one throughput row (``sps`` env-steps/s, ``warm`` warm-up s) and print it."""
+    rows.append(
+        {
+            "layout": layout,
+            "workers": workers,
+            "envs/worker": per_worker,
+            "trucks": workers * per_worker,
+            "compile": compiled,
+            "steps/s": sps,
+            "warmup_s": warm,
+        }
+    )
+    print(
+        f"  {layout:8s} W={workers:<3d} n={per_worker:<6d} compile={compiled!s:5s} "
+        f"{sps:12,.0f} steps/s",
+        flush=True,
+    )
+
+
+def _parallel_steps_per_second(
+    args: EnvBenchConfig, workers: int, per_worker: int, compiled: bool
+) -> tuple[float, float]:
+    """Env-steps/s and warm-up s of a ``ParallelEnv`` of ``workers`` spawned processes, each a
+    CPU ``TruckEnv`` of ``per_worker`` trucks; the processes are closed after."""
+    make = functools.partial(_make_env, per_worker, compiled, "cpu", args.seed)
+    penv = ParallelEnv(workers, make, mp_start_method="spawn")
+    try:
+        penv.set_seed(args.seed)
+        return steps_per_second(penv, args.steps, args.warmup)
+    finally:
+        penv.close()
+
+
+def _paper_row(args: EnvBenchConfig, rows: list[dict]) -> float:
+    """The paper's layout (24 single-truck eager processes): record its row, return its
+    env-steps/s, the reference of the ``x paper`` column."""
+    paper_sps, warm = _parallel_steps_per_second(args, PAPER_WORKERS, 1, False)
+    _record(rows, "paper", PAPER_WORKERS, 1, False, paper_sps, warm)
+    return paper_sps
+
+
+def _throughput_rows(args: EnvBenchConfig, compiled: bool, rows: list[dict]) -> None:
+    """One compile mode's rows: batched ``TruckEnv`` at each N of ``envs``, then
+    ``ParallelEnv`` at each total of ``parallel_envs`` (split over ``workers``)."""
+    for n in args.envs:
+        env = _make_env(n, compiled, args.device, args.seed)
+        sps, warm = steps_per_second(env, args.steps, args.warmup)
+        _record(rows, "batched", 1, n, compiled, sps, warm)
+    for total in args.parallel_envs:
+        per = max(1, total // args.workers)
+        sps, warm = _parallel_steps_per_second(args, args.workers, per, compiled)
+        _record(rows, "parallel", args.workers, per, compiled, sps, warm)
+
+
+def _summarize(
+    args: EnvBenchConfig, rows: list[dict], paper_sps: float | None, t_start: float
+) -> dict:
+    """Table, best row against the targets, printed lines and the JSON record; returns the
+    summary."""
     table = print_table("TruckEnv env-steps/s (random policy, resets included)", rows)
     best = max(rows, key=lambda r: r["steps/s"])
     summary = {
@@ -234,8 +268,7 @@ def run(args: EnvBenchConfig) -> dict:
         f"compile={best['compile']}: {best['steps/s']:,.0f} steps/s"
         + (f" = {summary['best_x_paper']:.1f}x the paper layout" if paper_sps else "")
     )
-    summary["wall_s"] = time.perf_counter() - t_start
-    print(f"bench env took {summary['wall_s']:.1f} s" + (" (quick)" if args.quick else ""))
+    _print_wall(args, summary, t_start)
     args_json = dataclasses.asdict(args)
     write_json(
         "env", {"rows": rows, "summary": summary, "table": table, "args": args_json}, args.out

@@ -206,11 +206,30 @@ def run(parsed: tuple[TrainBenchConfig, Any, list[str]]) -> dict:
     t_start = time.perf_counter()
     if opts.threads:
         torch.set_num_threads(opts.threads)
-    log = dataclasses.replace(tc.log, video_interval=0, eval_interval_min=0, progress_bar=False)
-    timed_tc = dataclasses.replace(tc, log=log, demos=dataclasses.replace(tc.demos, episodes=0))
-    device = torch.device(tc.device)
-    c = tc.collector
     threads = torch.get_num_threads()
+    _print_header(opts, tc, threads)
+    rows, prof = _iterations(opts, tc)
+    top_ops = _top_ops(prof, opts.profile) if opts.profile else []
+    if top_ops:
+        print_table(f"torch.profiler: one iteration, top {len(top_ops)} ops by self CPU", top_ops)
+    timed = rows[opts.warmup : opts.warmup + opts.iterations]
+    median = _median_row(timed)
+    columns = ["iteration", "frames/s", "total_s", *PARTS, "other_s"]
+    title = f"PPO training iteration ({threads} torch threads, {_compiles(tc)})"
+    table = print_table(title, [*timed, median], columns)
+    share = _print_shares(median)
+    wall = time.perf_counter() - t_start
+    print(f"bench train took {wall:.1f} s" + (" (quick)" if opts.quick else ""))
+    summary = {"median": median, "share": share, "torch_threads": threads, "wall_s": wall}
+    payload = {"rows": rows, "summary": summary, "config": _config_record(tc, overrides),
+               "table": table, "profile": top_ops, "args": dataclasses.asdict(opts)}  # fmt: skip
+    summary["path"] = str(write_json("train", payload, opts.out))
+    return summary
+
+
+def _print_header(opts: TrainBenchConfig, tc: Any, threads: int) -> None:
+    """The run's first line: batch shape, compile switches, PPO passes, threads, iterations."""
+    c = tc.collector
     print(
         f"bench train: {c.frames_per_batch:,} frames/iteration ({c.workers} x {c.num_envs} "
         f"trucks x {c.steps_per_env} steps), {_compiles(tc)}, "
@@ -218,6 +237,16 @@ def run(parsed: tuple[TrainBenchConfig, Any, list[str]]) -> dict:
         f"{threads} torch threads, {opts.warmup} warm-up + {opts.iterations} timed iterations",
         flush=True,
     )
+
+
+def _iterations(opts: TrainBenchConfig, tc: Any) -> tuple[list[dict[str, Any]], Any]:
+    """Run the warm-up, timed and (``profile > 0``) profiled iterations in a throw-away run dir,
+    with videos, held-out checks, the progress bar and demonstrations off (not per-iteration
+    work). Returns one :func:`_row` per iteration, in order, and the last iteration's profiler
+    (``None`` when not profiled)."""
+    log = dataclasses.replace(tc.log, video_interval=0, eval_interval_min=0, progress_bar=False)
+    timed_tc = dataclasses.replace(tc, log=log, demos=dataclasses.replace(tc.demos, episodes=0))
+    device = torch.device(tc.device)
     rows: list[dict[str, Any]] = []
     last = opts.warmup + opts.iterations  # one more, profiled and not timed, if asked
     prof = None
@@ -226,39 +255,47 @@ def run(parsed: tuple[TrainBenchConfig, Any, list[str]]) -> dict:
         trainer.setup()
         try:
             for it in range(last + (1 if opts.profile else 0)):
-                spans: dict[str, float] = {}
-                _sync(device)
-                t0 = time.perf_counter()
-                with _profiler(it == last) as prof:
-                    metrics = trainer.iterate(timings=spans)
-                _sync(device)
-                total = time.perf_counter() - t0
                 label = "warm-up" if it < opts.warmup else it - opts.warmup + 1
-                row = _row(
-                    "profiled" if it == last else label, int(metrics["frames"]), total, spans
-                )
-                if "loss_bc" in metrics:  # the cloning term ran (its time is in the PPO spans)
-                    row["loss_bc"] = metrics["loss_bc"]
+                row, prof = _time_iteration(trainer, device, "profiled" if it == last else label)
                 rows.append(row)
-                print(
-                    f"  iteration {row['iteration']}: {row['frames/s']:,.0f} frames/s "
-                    f"({total:.2f} s, collect {row['collect_s']:.2f} s, "
-                    f"update {spans['update_s']:.2f} s)",
-                    flush=True,
-                )
         finally:
             trainer.close(None)  # no final checkpoint: the run dir is thrown away
+    return rows, prof
 
-    top_ops = _top_ops(prof, opts.profile) if opts.profile else []
-    if top_ops:
-        print_table(f"torch.profiler: one iteration, top {len(top_ops)} ops by self CPU", top_ops)
-    timed = rows[opts.warmup : last]
+
+def _time_iteration(trainer: Any, device: torch.device, label: Any) -> tuple[dict, Any]:
+    """One :meth:`Trainer.iterate`, synchronised at both ends, under the profiler when
+    ``label == "profiled"``; prints its progress line. Returns its row (with ``loss_bc`` when
+    the cloning term ran) and the profiler (``None`` when off)."""
+    spans: dict[str, float] = {}
+    _sync(device)
+    t0 = time.perf_counter()
+    with _profiler(label == "profiled") as prof:
+        metrics = trainer.iterate(timings=spans)
+    _sync(device)
+    total = time.perf_counter() - t0
+    row = _row(label, int(metrics["frames"]), total, spans)
+    if "loss_bc" in metrics:  # the cloning term ran (its time is in the PPO spans)
+        row["loss_bc"] = metrics["loss_bc"]
+    print(
+        f"  iteration {row['iteration']}: {row['frames/s']:,.0f} frames/s "
+        f"({total:.2f} s, collect {row['collect_s']:.2f} s, "
+        f"update {spans['update_s']:.2f} s)",
+        flush=True,
+    )
+    return row, prof
+
+
+def _median_row(timed: list[dict[str, Any]]) -> dict[str, Any]:
+    """The median over the timed iterations of frames, frames/s and every time [s]."""
     median: dict[str, Any] = {"iteration": "median"}
     for k in ("frames", "frames/s", "total_s", *PARTS, "other_s"):
         median[k] = statistics.median(float(r[k]) for r in timed)
-    columns = ["iteration", "frames/s", "total_s", *PARTS, "other_s"]
-    title = f"PPO training iteration ({threads} torch threads, {_compiles(tc)})"
-    table = print_table(title, [*timed, median], columns)
+    return median
+
+
+def _print_shares(median: dict[str, Any]) -> dict[str, float]:
+    """Each part's share of the median ``total_s``; prints the median line. Returns the shares."""
     share = {p: median[p] / median["total_s"] for p in (*PARTS, "other_s")}
     update = sum(median[p] for p in PARTS[2:7])
     print(
@@ -267,10 +304,14 @@ def run(parsed: tuple[TrainBenchConfig, Any, list[str]]) -> dict:
         f"(loss forward {share['loss_forward_s']:.0%}, backward {share['backward_s']:.0%}, "
         f"optimizer {share['optimizer_s']:.0%}, GAE {share['gae_s']:.0%})"
     )
-    wall = time.perf_counter() - t_start
-    print(f"bench train took {wall:.1f} s" + (" (quick)" if opts.quick else ""))
-    summary = {"median": median, "share": share, "torch_threads": threads, "wall_s": wall}
-    config = {
+    return share
+
+
+def _config_record(tc: Any, overrides: list[str]) -> dict[str, Any]:
+    """The JSON record's ``config``: the overrides and the settings that set the work per
+    iteration."""
+    c = tc.collector
+    return {
         "overrides": overrides,
         "frames_per_batch": c.frames_per_batch,
         "workers": c.workers,
@@ -284,7 +325,3 @@ def run(parsed: tuple[TrainBenchConfig, Any, list[str]]) -> dict:
         "bc_coeff": tc.demos.bc_coeff,
         "device": tc.device,
     }
-    payload = {"rows": rows, "summary": summary, "config": config, "table": table,
-               "profile": top_ops, "args": dataclasses.asdict(opts)}  # fmt: skip
-    summary["path"] = str(write_json("train", payload, opts.out))
-    return summary

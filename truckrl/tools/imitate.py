@@ -63,51 +63,76 @@ class ImitateConfig:
 def run(args: ImitateConfig, overrides: list[str]) -> Path:
     """Clone ``args.plan`` into a checkpoint under ``args.out``; ``overrides``: the train config's
     (``train.KEY=VALUE`` without ``train.``, as written)."""
-    try:
-        plan = json.loads(Path(args.plan).read_text())
-        meta = {k: plan[k] for k in ("episodes", "seed", "difficulty", "env", "per_episode")}
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise ConfigError(f"plan {args.plan}: not a truckrl plan JSON ({e})") from None
+    plan, meta = _read_plan(args.plan)
     out = Path(args.out or f"outputs/imitate/{datetime.now():%Y-%m-%d/%H-%M-%S}")
     if (out / "checkpoints" / "last.pt").exists():
         raise ConfigError(f"out = {str(out)!r} already holds a checkpoint: choose another dir")
 
     import torch
-    import yaml
 
-    from truckrl.cli import compose_config, git_revision
+    from truckrl.cli import compose_config
     from truckrl.config.schemas import TrainConfig
-    from truckrl.planning import held_out_states
-    from truckrl.rl.checkpoint import save_training_state
-    from truckrl.rl.curriculum import Curriculum
-    from truckrl.rl.imitation import (
-        SAMPLES_NAME,
-        behaviour_clone,
-        demonstrations,
-        plan_demos,
-        save_samples,
-        set_action_std,
-    )
-    from truckrl.rl.network import make_actor_critic
-    from truckrl.rl.ppo import PPO
 
     tc = compose_config("train", TrainConfig, overrides)
+    _check_env_config(args.plan, tc, meta["env"])
+    torch.set_num_threads(args.threads)
+    t0 = time.perf_counter()
+    ac, samples, kept, losses = _clone(args, tc, plan, meta)
+    ckpt = _write_run(out, tc, ac, samples)
+    (out / "imitation.json").write_text(
+        json.dumps(
+            {"plan": str(args.plan), "plans_kept": kept, "samples": samples.numel(),
+             "epochs": args.epochs, "lr": args.lr, "batch_size": args.batch_size,
+             "std": args.std, "losses": losses, "seconds": time.perf_counter() - t0},
+            indent=2,
+        ) + "\n"
+    )  # fmt: skip
+    print(f"checkpoint: {ckpt}\ntrain: truckrl train resume={out}")
+    return out
+
+
+def _read_plan(path: str) -> tuple[dict, dict]:
+    """The ``truckrl plan`` JSON at ``path`` and its ``episodes``, ``seed``, ``difficulty``,
+    ``env`` and ``per_episode`` entries; anything else is a :class:`ConfigError`."""
+    try:
+        plan = json.loads(Path(path).read_text())
+        meta = {k: plan[k] for k in ("episodes", "seed", "difficulty", "env", "per_episode")}
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise ConfigError(f"plan {path}: not a truckrl plan JSON ({e})") from None
+    return plan, meta
+
+
+def _check_env_config(plan_path: str, tc: Any, plan_env: dict) -> None:
+    """Raise a :class:`ConfigError` naming the differing ``env.`` keys when the plan's env config
+    (``plan_env``, as stored in the JSON) is not the training's, ``compile``, ``lidar`` and the
+    task's reward weights aside."""
     # as stored; the reward weights do not change what a plan does (the planner has its own cost),
     # nor does the LiDAR (a plan is actions from start states; the samples' scans are replayed
     # with this run's sensor, so a plan from the paper's 16 beams serves the default run's 32)
     mine = json.loads(json.dumps({**dataclasses.asdict(tc.env), "compile": None, "lidar": None}))
-    theirs = {**meta["env"], "compile": None, "lidar": None}
+    theirs = {**plan_env, "compile": None, "lidar": None}
     for cfg in (mine, theirs):
         if isinstance(cfg.get("task"), dict):
             cfg["task"] = {k: v for k, v in cfg["task"].items() if k != "reward"}
     if mine != theirs:
         diff = sorted(k for k in mine if mine[k] != theirs.get(k))
         raise ConfigError(
-            f"plan {args.plan} was made with another env config (env.{', env.'.join(diff)}); "
+            f"plan {plan_path} was made with another env config (env.{', env.'.join(diff)}); "
             "plan with the training's env settings"
         )
-    torch.set_num_threads(args.threads)
-    t0 = time.perf_counter()
+
+
+def _clone(args: ImitateConfig, tc: Any, plan: dict, meta: dict) -> tuple[Any, Any, int, list]:
+    """Replay the plan's successful episodes on their rebuilt start states, then fit a fresh
+    actor-critic (seeded by ``tc.seed``) to the replayed samples and set its action std.
+    Returns the actor-critic, the samples (flat TensorDict: ``observation`` [S, F], ``lidar``
+    [S, R], ``action``), how many plans replayed to success, and the per-epoch action MSE."""
+    import torch
+
+    from truckrl.planning import held_out_states
+    from truckrl.rl.imitation import behaviour_clone, demonstrations, plan_demos, set_action_std
+    from truckrl.rl.network import make_actor_critic
+
     index, actions = plan_demos(plan)
     if not index:
         raise ConfigError(f"plan {args.plan} has no successful episode to learn from")
@@ -121,6 +146,20 @@ def run(args: ImitateConfig, overrides: list[str]) -> Path:
     print(
         f"behaviour cloning: {args.epochs} epochs, action MSE {losses[0]:.4f} -> {losses[-1]:.4f}"
     )
+    return ac, samples, kept, losses
+
+
+def _write_run(out: Path, tc: Any, ac: Any, samples: Any) -> Path:
+    """Write ``<out>/checkpoints/last.pt`` (iteration 0: curriculum at its start, fresh
+    optimizer, the composed train config) and the samples; returns the checkpoint path."""
+    import yaml
+
+    from truckrl.cli import git_revision
+    from truckrl.rl.checkpoint import save_training_state
+    from truckrl.rl.curriculum import Curriculum
+    from truckrl.rl.imitation import SAMPLES_NAME, save_samples
+    from truckrl.rl.ppo import PPO
+
     ckpt = save_training_state(
         out / "checkpoints" / "last.pt",
         model=ac.model,
@@ -133,16 +172,7 @@ def run(args: ImitateConfig, overrides: list[str]) -> Path:
         source=git_revision(),
     )
     save_samples(out / SAMPLES_NAME, samples)  # for train resume=<out> with demos.bc_coeff > 0
-    (out / "imitation.json").write_text(
-        json.dumps(
-            {"plan": str(args.plan), "plans_kept": kept, "samples": samples.numel(),
-             "epochs": args.epochs, "lr": args.lr, "batch_size": args.batch_size,
-             "std": args.std, "losses": losses, "seconds": time.perf_counter() - t0},
-            indent=2,
-        ) + "\n"
-    )  # fmt: skip
-    print(f"checkpoint: {ckpt}\ntrain: truckrl train resume={out}")
-    return out
+    return ckpt
 
 
 def main(argv: list[str] | None = None) -> int:

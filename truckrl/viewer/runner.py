@@ -364,24 +364,10 @@ def run_loop(
             (a key press moves on sooner).
     """
     result = LoopResult()
-    last_id = None
-    ended_at: float | None = None
+    ended_at: float | None = None  # [s] time.monotonic() when the shown episode ended
     if window is not None and inputs is window:
-        runner.done_hint = {
-            "new": "any key: next scene",
-            "same": "any key: again",
-            "wait": "R: again   N: new scene",
-        }.get(on_done, "")
-        runner.set_wait_for_key(True)
-
-    def emit() -> None:
-        nonlocal last_id
-        if runner.frame_id != last_id:
-            last_id = runner.frame_id
-            result.frames += 1
-            for sink in sinks:
-                sink(runner)
-
+        _wait_for_person(runner, on_done)
+    emit = _FrameEmitter(runner, result, sinks)
     emit()
     while max_frames is None or result.frames < max_frames:
         key = inputs.poll()
@@ -390,37 +376,101 @@ def run_loop(
         commands = [c for c in map(command_for, key.pressed) if c is not None]
         if Command.QUIT in commands:
             break
-        for cmd in commands:
-            runner.command(cmd)
-            if cmd in (Command.RESTART, Command.NEW_SCENE):
-                ended_at = None
-        try:
-            stepped = runner.step(key.held)
-        except EndOfInput:
+        if _apply_commands(runner, commands):
+            ended_at = None
+        if not _step(runner, key.held, result):
             break
-        result.steps += stepped
-        if stepped and runner.ended:
-            result.outcomes.append(runner.outcome)
-            result.returns.append(runner.episode_return)
         emit()
         if runner.ended and episodes is not None and runner.episodes_done >= episodes:
             break
         if runner.ended and (on_done != "wait" or window is None):
-            now = time.monotonic()
-            key_after_end = ended_at is not None and bool(key.pressed)
-            ended_at = now if ended_at is None else ended_at
-            if window is None or key_after_end or now - ended_at >= done_hold_s:
-                if on_done == "same":
-                    runner.restart()
-                else:
-                    runner.new_scene()
-                ended_at = None
-                if max_frames is None or result.frames < max_frames:
-                    emit()
+            ended_at = _hold_or_move_on(
+                runner, bool(key.pressed), ended_at, on_done, window is None, done_hold_s
+            )
+            if ended_at is None and (max_frames is None or result.frames < max_frames):
+                emit()
         if window is not None:
             window.show(runner.frame)
             window.tick(fps)
     return result
+
+
+def _wait_for_person(runner: Runner, on_done: str) -> None:
+    """A person at the window's keyboard: keyboard episodes wait for the first drive key, and a
+    finished episode's banner says what a key does next (per ``on_done``)."""
+    runner.done_hint = {
+        "new": "any key: next scene",
+        "same": "any key: again",
+        "wait": "R: again   N: new scene",
+    }.get(on_done, "")
+    runner.set_wait_for_key(True)
+
+
+class _FrameEmitter:
+    """Calling it hands the runner's frame to each sink and counts it in ``result.frames``, once
+    per distinct frame (a changed :attr:`Runner.frame_id`)."""
+
+    def __init__(
+        self, runner: Runner, result: LoopResult, sinks: tuple[Callable[[Runner], None], ...]
+    ) -> None:
+        self.runner, self.result, self.sinks = runner, result, sinks
+        self.last_id: int | None = None
+
+    def __call__(self) -> None:
+        if self.runner.frame_id != self.last_id:
+            self.last_id = self.runner.frame_id
+            self.result.frames += 1
+            for sink in self.sinks:
+                sink(self.runner)
+
+
+def _apply_commands(runner: Runner, commands: list[Command]) -> bool:
+    """Apply the frame's viewer commands in order; True if one restarted the scene or began a
+    new one (the end-of-episode hold starts over)."""
+    began = False
+    for cmd in commands:
+        runner.command(cmd)
+        if cmd in (Command.RESTART, Command.NEW_SCENE):
+            began = True
+    return began
+
+
+def _step(runner: Runner, held: frozenset[str], result: LoopResult) -> bool:
+    """One :meth:`Runner.step` with the held keys, counted in ``result`` (steps, and the outcome
+    and return of an episode it ended); False when the action source has nothing more to play."""
+    try:
+        stepped = runner.step(held)
+    except EndOfInput:
+        return False
+    result.steps += stepped
+    if stepped and runner.ended:
+        result.outcomes.append(runner.outcome)
+        result.returns.append(runner.episode_return)
+    return True
+
+
+def _hold_or_move_on(
+    runner: Runner,
+    pressed: bool,
+    ended_at: float | None,
+    on_done: str,
+    headless: bool,
+    done_hold_s: float,
+) -> float | None:
+    """A finished episode: headless, or in a window after a key press or ``done_hold_s`` [s],
+    restart it (``on_done="same"``) or begin a new scene, and return ``None``; otherwise keep
+    showing it and return when it ended (``time.monotonic()`` [s], ``ended_at`` if already
+    set). ``pressed``: keys were pressed this frame."""
+    now = time.monotonic()
+    key_after_end = ended_at is not None and pressed
+    ended_at = now if ended_at is None else ended_at
+    if headless or key_after_end or now - ended_at >= done_hold_s:
+        if on_done == "same":
+            runner.restart()
+        else:
+            runner.new_scene()
+        return None
+    return ended_at
 
 
 class StripSink:
