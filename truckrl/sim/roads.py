@@ -33,7 +33,7 @@ is dropped.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import torch
 from torch import Tensor
@@ -320,3 +320,35 @@ def turn_exit_room(
     before = (u_start[:, 0] * d[:, 1] - u_start[:, 1] * d[:, 0]) / safe
     tan_half = cross.abs() / (1.0 + cos_turn).clamp_min(1e-9)  # tan(|turn| / 2)
     return before / trailer_wheelbase - tan_half
+
+
+@dataclass
+class FramedScenes:
+    """A batch of ``N`` scenes built in a local frame and placed in the world (world metres,
+    radians); a task's scene batch subclasses it and documents its slots and metadata.
+
+    Attributes:
+        segments: ``[N, E, 4]`` scene segments, zeros where masked.
+        mask: ``[N, E]`` bool, ``False`` = padding.
+        kind: ``[N, E]`` int8, :data:`~truckrl.sim.geometry.KIND_CURB` or ``KIND_OBSTACLE``.
+        start: ``[N, 3]`` start pose (rear axle x, y, heading), articulation 0.
+        goal: ``[N, 3]`` goal pose, same convention.
+        frame: ``[N, 3]`` the local frame in the world: origin x, y and heading.
+        info: ``{key: [N]}`` per-episode metadata.
+    """
+
+    segments: Tensor
+    mask: Tensor
+    kind: Tensor
+    start: Tensor
+    goal: Tensor
+    frame: Tensor
+    info: dict[str, Tensor]
+
+    def __len__(self) -> int:
+        return self.segments.shape[0]
+
+    def to(self, device: torch.device | str) -> FramedScenes:
+        """A copy on ``device`` (the same subclass)."""
+        out = {f.name: getattr(self, f.name).to(device) for f in fields(self) if f.name != "info"}
+        return type(self)(**out, info={k: v.to(device) for k, v in self.info.items()})

@@ -26,6 +26,20 @@ SENSOR_SCALE = 50.0
 MAX_DIFFICULTY = 30.0
 
 
+@dataclass
+class TerminalRewardConfig:
+    """The paper's per-step and terminal reward weights (paper, "Rewards"); every task's reward
+    config extends it with its progress terms."""
+
+    time: float = param(0.0, unit="1/step", doc="every step", source="paper")
+    success: float = param(5.0, doc="on success", source="paper")
+    collision: float = param(-7.0, doc="on collision or jack-knife", source="paper")
+    timeout: float = param(-8.0, doc="on timeout", source="paper")
+
+    def __post_init__(self) -> None:
+        validate(self, "env.task.reward")
+
+
 #: The task a config without ``task.name`` runs: the paper's. The only place outside a task's
 #: folder that names a task (tests/test_layers.py checks this).
 DEFAULT_TASK = "intersection"

@@ -9,8 +9,9 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from truckrl.config.fields import param, validate
+from truckrl.config.fields import param
 from truckrl.sim.geometry import wrap_angle
+from truckrl.tasks.config import TerminalRewardConfig
 from truckrl.tasks.schema import Quantity
 
 #: The three errors of :func:`pose_errors`, with units (``Task.error_quantities``).
@@ -45,9 +46,9 @@ def pose_success(err: dict[str, Tensor], tol_pos: Tensor, tol_ang: Tensor) -> Te
 
 
 @dataclass
-class PoseRewardConfig:
-    """The paper's reward weights for a goal pose (paper, "Rewards"); a task's reward config
-    extends it with its own shaping fields."""
+class PoseRewardConfig(TerminalRewardConfig):
+    """The paper's reward weights for a goal pose (paper, "Rewards"): the terminal ones and the
+    progress and heading-correction terms; a task's reward config extends it with its shaping."""
 
     progress: float = param(0.05, unit="1/m", doc="per metre of progress", source="paper")
     tractor_heading: float = param(
@@ -56,10 +57,3 @@ class PoseRewardConfig:
     trailer_heading: float = param(
         0.5, unit="1/rad", doc="per radian of trailer heading correction", source="paper"
     )
-    time: float = param(0.0, unit="1/step", doc="every step", source="paper")
-    success: float = param(5.0, doc="on success", source="paper")
-    collision: float = param(-7.0, doc="on collision or jack-knife", source="paper")
-    timeout: float = param(-8.0, doc="on timeout", source="paper")
-
-    def __post_init__(self) -> None:
-        validate(self, "env.task.reward")

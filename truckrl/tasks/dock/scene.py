@@ -67,14 +67,14 @@ Per-episode metadata (:attr:`DockSceneBatch.info`, :data:`DOCK_INFO_KEYS`, each 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
 from truckrl.config.fields import ConfigError, param, validate
 from truckrl.sim.geometry import KIND_CURB, KIND_OBSTACLE, rectangle_segments, wrap_angle
-from truckrl.sim.roads import scene_device, to_world, uniform
+from truckrl.sim.roads import FramedScenes, scene_device, to_world, uniform
 from truckrl.sim.vehicle import trailer_rear_offset, truck_extents
 
 #: Per-episode metadata keys of :attr:`DockSceneBatch.info` (meaning and units there).
@@ -204,8 +204,7 @@ class DockSceneConfig:
         return _FIXED_SLOTS + (self.max_bays + 1) + 4 * self.max_bays
 
 
-@dataclass
-class DockSceneBatch:
+class DockSceneBatch(FramedScenes):
     """A batch of ``N`` dock scenes (world metres, radians).
 
     Attributes:
@@ -239,23 +238,6 @@ class DockSceneBatch:
               (:meth:`truckrl.tasks.dock.task.DockTask.on_reset`), stored so that it needs no
               random numbers at reset.
     """
-
-    segments: Tensor
-    mask: Tensor
-    kind: Tensor
-    start: Tensor
-    goal: Tensor
-    frame: Tensor
-    info: dict[str, Tensor]
-
-    def __len__(self) -> int:
-        return self.segments.shape[0]
-
-    def to(self, device) -> DockSceneBatch:
-        """A copy on ``device``."""
-        out = {f.name: getattr(self, f.name) for f in fields(self)}
-        out = {k: v.to(device) for k, v in out.items() if k != "info"}
-        return DockSceneBatch(**out, info={k: v.to(device) for k, v in self.info.items()})
 
 
 def generate_dock_scenes(

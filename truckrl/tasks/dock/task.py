@@ -52,7 +52,7 @@ from truckrl.config.fields import ConfigError, param, validate
 from truckrl.sim.geometry import to_local, wrap_angle
 from truckrl.sim.vehicle import trailer_axle, trailer_rear_offset
 from truckrl.tasks.base import Task
-from truckrl.tasks.config import SENSOR_SCALE, EnvConfig, TaskConfig
+from truckrl.tasks.config import SENSOR_SCALE, EnvConfig, TaskConfig, TerminalRewardConfig
 from truckrl.tasks.dock.scene import (
     START_PULLED,
     DockSceneConfig,
@@ -69,20 +69,13 @@ INFO_KEY = "scene_info"
 
 
 @dataclass
-class DockRewardConfig:
+class DockRewardConfig(TerminalRewardConfig):
     """Reward weights of the dock task (terminal values: the paper's)."""
 
     progress: float = param(0.1, unit="1/m", doc="per metre the trailer rear-centre gains")
     trailer_heading: float = param(
         0.5, unit="1/rad", doc="per radian of trailer heading correction", source="paper"
     )
-    time: float = param(0.0, unit="1/step", doc="every step", source="paper")
-    success: float = param(5.0, doc="on success", source="paper")
-    collision: float = param(-7.0, doc="on collision or jack-knife", source="paper")
-    timeout: float = param(-8.0, doc="on timeout", source="paper")
-
-    def __post_init__(self) -> None:
-        validate(self, "env.task.reward")
 
 
 @dataclass

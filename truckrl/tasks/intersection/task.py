@@ -51,9 +51,6 @@ class RewardConfig(PoseRewardConfig):
         "(module doc)",
     )
 
-    def __post_init__(self) -> None:
-        validate(self, "env.task.reward")
-
 
 @dataclass
 class IntersectionConfig(TaskConfig):

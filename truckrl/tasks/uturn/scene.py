@@ -85,14 +85,14 @@ generated), ``start_sigma`` (-1 as generated), ``stage_draw`` and ``place_draw``
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
 from truckrl.config.fields import ConfigError, param, validate
 from truckrl.sim.geometry import KIND_CURB, wrap_angle
-from truckrl.sim.roads import lane_offset, scene_device, to_world, uniform
+from truckrl.sim.roads import FramedScenes, lane_offset, scene_device, to_world, uniform
 from truckrl.sim.vehicle import truck_extents
 
 #: Segment slots per scene (module doc, "Segments").
@@ -242,8 +242,7 @@ class UTurnSceneConfig:
             )
 
 
-@dataclass
-class UTurnSceneBatch:
+class UTurnSceneBatch(FramedScenes):
     """``N`` turnaround scenes as plain tensors (world metres, radians).
 
     Attributes:
@@ -255,22 +254,6 @@ class UTurnSceneBatch:
         frame: ``[N, 3]`` the local frame (mouth centre x, y, road heading = start heading).
         info: ``{key: [N]}`` metadata (:data:`INFO_KEYS`, module doc).
     """
-
-    segments: Tensor
-    mask: Tensor
-    kind: Tensor
-    start: Tensor
-    goal: Tensor
-    frame: Tensor
-    info: dict[str, Tensor]
-
-    def __len__(self) -> int:
-        return self.segments.shape[0]
-
-    def to(self, device) -> UTurnSceneBatch:
-        out = {f.name: getattr(self, f.name) for f in fields(self)}
-        out = {k: v.to(device) for k, v in out.items() if k != "info"}
-        return UTurnSceneBatch(**out, info={k: v.to(device) for k, v in self.info.items()})
 
 
 def forward_uturn_width(p: dict[str, Tensor]) -> tuple[Tensor, Tensor]:

@@ -97,9 +97,6 @@ class UTurnRewardConfig(PoseRewardConfig):
         "from the curb",
     )
 
-    def __post_init__(self) -> None:
-        validate(self, "env.task.reward")
-
 
 @dataclass
 class UTurnConfig(TaskConfig):
