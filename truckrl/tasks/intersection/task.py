@@ -32,7 +32,7 @@ from truckrl.config.fields import param, validate
 from truckrl.sim.geometry import wrap_angle
 from truckrl.tasks.base import Task
 from truckrl.tasks.config import TaskConfig
-from truckrl.tasks.goals import POSE_ERRORS, PoseRewardConfig, pose_errors, pose_success
+from truckrl.tasks.goals import PoseGoal, PoseRewardConfig, pose_reward_terms
 from truckrl.tasks.intersection.bins import episode_bins
 from truckrl.tasks.intersection.scene import ROUTE_KEYS, SceneConfig, generate_scenes
 
@@ -64,21 +64,11 @@ class IntersectionConfig(TaskConfig):
         validate(self, "env.task")
 
 
-class IntersectionTask(Task):
+class IntersectionTask(PoseGoal, Task):
     """The paper's task; see the module docstring."""
 
     name = "intersection"
     config_class = IntersectionConfig
-    error_quantities = POSE_ERRORS
-    reward_keys = (
-        "r_progress",
-        "r_tractor_heading",
-        "r_trailer_heading",
-        "r_time",
-        "r_success",
-        "r_collision",
-        "r_timeout",
-    )
 
     extra_state_keys = ("route_path",)
 
@@ -101,33 +91,13 @@ class IntersectionTask(Task):
             state["route_path"] = route_path(state["pose"][:, :3], state["goal"])
         return state
 
-    def errors(self, s: dict[str, Any]) -> dict[str, Tensor]:
-        return pose_errors(s)
-
-    def success(self, err: dict[str, Tensor], tol_pos: Tensor, tol_ang: Tensor) -> Tensor:
-        return pose_success(err, tol_pos, tol_ang)
-
     def reward_terms(
         self, before: dict[str, Any], after: dict[str, Any], flags: dict[str, Tensor]
     ) -> dict[str, Tensor]:
         w = self.cfg.task.reward
-        zero = torch.zeros_like(after["pos_error"])
-        failed = flags["collision"] | flags["jackknife"]
         if w.shaping == "route":
-            b, a = route_errors(before), route_errors(after)
-        else:
-            b, a = before, after
-        return {
-            "r_progress": w.progress * (b["pos_error"] - a["pos_error"]),
-            "r_tractor_heading": w.tractor_heading
-            * (b["tractor_heading_error"] - a["tractor_heading_error"]),
-            "r_trailer_heading": w.trailer_heading
-            * (b["trailer_heading_error"] - a["trailer_heading_error"]),
-            "r_time": zero + w.time,
-            "r_success": torch.where(flags["success"], w.success, zero),
-            "r_collision": torch.where(failed, w.collision, zero),
-            "r_timeout": torch.where(flags["truncated"], w.timeout, zero),
-        }
+            before, after = route_errors(before), route_errors(after)
+        return pose_reward_terms(w, before, after, flags)
 
 
 #: Smallest |sin| of the angle between the start and goal lanes for which they count as meeting

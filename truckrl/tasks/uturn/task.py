@@ -58,7 +58,7 @@ from truckrl.config.fields import param, validate
 from truckrl.sim.geometry import rotate, to_local
 from truckrl.tasks.base import Task
 from truckrl.tasks.config import SENSOR_SCALE, TaskConfig
-from truckrl.tasks.goals import POSE_ERRORS, PoseRewardConfig, pose_errors, pose_success
+from truckrl.tasks.goals import PoseGoal, PoseRewardConfig, pose_reward_terms
 from truckrl.tasks.schema import CategoryDim
 from truckrl.tasks.uturn.scene import INFO_KEYS, UTurnSceneConfig, generate_uturn_scenes
 from truckrl.tasks.uturn.start import (
@@ -133,22 +133,12 @@ def turning_point(info: Mapping[str, Tensor], depth_fraction: float) -> Tensor:
     return rotate(local, info["road_heading"]) + mouth
 
 
-class UTurnTask(Task):
+class UTurnTask(PoseGoal, Task):
     """Turnaround on a narrow road through a side branch; see the module docstring."""
 
     name = "uturn"
     config_class = UTurnConfig
     reverse = True
-    error_quantities = POSE_ERRORS
-    reward_keys = (
-        "r_progress",
-        "r_tractor_heading",
-        "r_trailer_heading",
-        "r_time",
-        "r_success",
-        "r_collision",
-        "r_timeout",
-    )
     num_extras = 3
     category_dims = (
         CategoryDim(
@@ -260,34 +250,15 @@ class UTurnTask(Task):
             return state
         return curriculum_start(state, info, difficulty, cur, self.errors)
 
-    def errors(self, s: dict[str, Any]) -> dict[str, Tensor]:
-        """:func:`~truckrl.tasks.goals.pose_errors`."""
-        return pose_errors(s)
-
-    def success(self, err: dict[str, Tensor], tol_pos: Tensor, tol_ang: Tensor) -> Tensor:
-        return pose_success(err, tol_pos, tol_ang)
-
     def reward_terms(
         self, before: dict[str, Any], after: dict[str, Any], flags: dict[str, Tensor]
     ) -> dict[str, Tensor]:
         w = self.cfg.task.reward
-        zero = torch.zeros_like(after["pos_error"])
-        failed = flags["collision"] | flags["jackknife"]
         if w.shaping == "route":
             progress = route_to_go(before) - route_to_go(after)
         else:
             progress = before["pos_error"] - after["pos_error"]
-        return {
-            "r_progress": w.progress * progress,
-            "r_tractor_heading": w.tractor_heading
-            * (before["tractor_heading_error"] - after["tractor_heading_error"]),
-            "r_trailer_heading": w.trailer_heading
-            * (before["trailer_heading_error"] - after["trailer_heading_error"]),
-            "r_time": zero + w.time,
-            "r_success": torch.where(flags["success"], w.success, zero),
-            "r_collision": torch.where(failed, w.collision, zero),
-            "r_timeout": torch.where(flags["truncated"], w.timeout, zero),
-        }
+        return pose_reward_terms(w, before, after, flags, progress)
 
     def observation_extras(self, s: dict[str, Any]) -> Tensor:
         """``[N, 3]`` (``[N, 9]`` with ``env.task.observe_route``): signed speed /
