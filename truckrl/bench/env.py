@@ -32,7 +32,13 @@ import torch
 from torchrl.envs import EnvBase, ParallelEnv
 
 from truckrl.bench import peers
-from truckrl.bench.report import DEFAULT_OUT_DIR, draw_loglog_panels, print_table, write_json
+from truckrl.bench.report import (
+    DEFAULT_OUT_DIR,
+    draw_loglog_panels,
+    fill_unset,
+    print_table,
+    write_json,
+)
 from truckrl.config.fields import param, validate
 from truckrl.env import TruckEnv
 from truckrl.tasks import NUM_FEATURES
@@ -108,10 +114,7 @@ def parse(argv: list[str]) -> EnvBenchConfig:
 
     args = key_value_config(EnvBenchConfig, argv, "truckrl bench env", __doc__)
     if args.quick:
-        given = {a.partition("=")[0] for a in argv}
-        for k, v in QUICK.items():
-            if k not in given:
-                setattr(args, k, v)
+        fill_unset(args, argv, QUICK)
     if any(n < args.workers for n in args.parallel_envs):
         fail(
             f"parallel_envs = {list(args.parallel_envs)}: each must be >= workers ({args.workers})"

@@ -53,6 +53,15 @@ def time_call(
     return {"median_s": times[len(times) // 2], "min_s": times[0], "repeats": repeats}
 
 
+def fill_unset(cfg: Any, argv: Sequence[str], values: dict[str, Any]) -> None:
+    """Set the fields ``values`` on ``cfg`` where the ``KEY=VALUE`` arguments ``argv`` did not
+    (a benchmark's ``quick=true`` defaults: what the user gives wins)."""
+    given = {a.partition("=")[0] for a in argv}
+    for k, v in values.items():
+        if k not in given:
+            setattr(cfg, k, v)
+
+
 def format_table(rows: Sequence[dict[str, Any]], columns: Sequence[str] | None = None) -> str:
     """Rows of ``{column: value}`` as a markdown table (floats to 4 significant digits)."""
     if not rows:

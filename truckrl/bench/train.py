@@ -41,7 +41,7 @@ from typing import Any
 
 import torch
 
-from truckrl.bench.report import print_table, write_json
+from truckrl.bench.report import fill_unset, print_table, write_json
 from truckrl.config.fields import param, validate
 
 #: ``quick=true``: a small eager run (no compile): a check that the benchmark runs, not a figure.
@@ -104,10 +104,7 @@ def parse(argv: list[str]) -> tuple[TrainBenchConfig, Any, list[str]]:
         (own if mine else overrides).append(arg)
     opts = key_value_config(TrainBenchConfig, own, "truckrl bench train", __doc__)
     if opts.quick:
-        given = {a.partition("=")[0] for a in own}
-        for k, v in QUICK.items():
-            if k not in given:
-                setattr(opts, k, v)
+        fill_unset(opts, own, QUICK)
         overrides = [*QUICK_OVERRIDES, *overrides]
     if opts.out is not None and Path(opts.out).suffix != ".json" and Path(opts.out).is_file():
         fail(f"out = {opts.out!r}: is a file, not a .json path or a folder")
