@@ -5,17 +5,16 @@ import math
 import pytest
 import torch
 
-from truckrl.evaluation.categories import (
+from truckrl.evaluation.categories import format_category_table, summarize_by_category
+from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params
+from truckrl.tasks.intersection.bins import (
     CROSSING_EDGES_DEG,
     GOAL_DISTANCE_EDGES_M,
     ROAD_WIDTH_EDGES_M,
     TRAILER_LENGTH_EDGES_M,
     episode_bins,
-    format_category_table,
     scene_info,
-    summarize_by_category,
 )
-from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params
 from truckrl.tasks.intersection.scene import SceneConfig, generate_scenes
 
 F64 = torch.float64
@@ -324,8 +323,8 @@ def test_format_category_table():
 def test_generic_bins_of_a_task_with_its_own_dimensions():
     """A task's ``category_dims``: edges bin (scaled) values, names label integer codes; values
     outside the edges get their own bin, every episode lands in one bin per dimension."""
-    from truckrl.evaluation.categories import generic_bins
     from truckrl.tasks import CategoryDim
+    from truckrl.tasks.bins import generic_bins
 
     dims = (
         CategoryDim("bay width [m]", "bay_width", edges=(3.0, 4.0, 5.0)),
