@@ -83,17 +83,15 @@ def run_or_fail(run: Callable[[Any], Any], args: Any) -> int:
 
 
 def key_value_config(schema: type[T], argv: list[str], prog: str, about: str = "") -> T:
-    """Parse ``KEY=VALUE`` arguments (dotted keys for nested fields, values in YAML syntax, as
-    Hydra's overrides) into a validated ``schema`` instance: the argument style of every command
-    whose config is one dataclass rather than a composed Hydra config (``bench``, ``tools ...``).
+    """Parse ``KEY=VALUE`` arguments into a validated ``schema`` instance
+    (:func:`truckrl.config.overrides.parse_key_values`).
 
     ``-h`` / ``--help`` prints ``prog``, ``about`` and the fields (name, default, unit, allowed,
     meaning) and exits 0; a malformed argument, an unknown key or a bad value prints one line
     ``error: ...`` and exits 2 (:func:`fail`).
     """
-    import yaml
-
-    from truckrl.config.fields import ConfigError, build, spec_table
+    from truckrl.config.fields import ConfigError, spec_table
+    from truckrl.config.overrides import parse_key_values
 
     if {"-h", "--help"} & set(argv):
         rows = spec_table(schema)
@@ -106,26 +104,10 @@ def key_value_config(schema: type[T], argv: list[str], prog: str, about: str = "
             lines.append(f"  {name:<{width}}  {doc}{unit_text}; {allowed}; default {default}")
         print("\n".join(lines))
         sys.exit(0)
-    data: dict[str, Any] = {}
-    for arg in argv:
-        key, sep, text = arg.partition("=")
-        if not sep or not key or not all(p.isidentifier() for p in key.split(".")):
-            fail(f"{arg!r}: arguments are KEY=VALUE (see {prog} --help)")
-        try:
-            value = yaml.safe_load(text) if text else ""
-        except yaml.YAMLError:
-            value = text
-        node = data
-        *parents, leaf = key.split(".")
-        for part in parents:
-            node = node.setdefault(part, {})
-            if not isinstance(node, dict):
-                fail(f"{key}: {part} is a value, not a group of fields")
-        node[leaf] = value
     try:
-        return build(schema, data)
+        return parse_key_values(schema, argv)
     except ConfigError as e:
-        fail(str(e))
+        fail(f"{e} (see {prog} --help)" if "arguments are KEY=VALUE" in str(e) else str(e))
 
 
 def to_config(schema: type[T], cfg: Any) -> T:
