@@ -15,7 +15,10 @@ planning       the planner's search; a task folder's ``expert``
 rl             network, PPO, curriculum, collection, checkpoints, imitation, the trainer
 viewer         the interactive frame loop
 schemas        the entry points' config schemas and their Hydra registration
-entry          the ``truckrl`` command and every subcommand
+cli            what the commands share: Hydra entry, one-line errors, ``KEY=VALUE`` parsing
+entry          the commands: train, evaluate, play, export, plan, bench, tools (none imports
+               another)
+main           ``truckrl/__main__.py``, the ``truckrl`` command that dispatches to them
 =============  ===============================================================================
 
 A task folder (``truckrl/tasks/<name>/``) spans layers by role: ``expert.py`` and anything under
@@ -44,10 +47,12 @@ ALLOWED: dict[str, set[str]] = {
     "viewer": {"config", "sim", "task", "viz", "env", "evaluation", "rl"},
     "schemas": {"config", "sim", "task", "viz", "env", "evaluation", "planning", "rl"},
 }
-ALLOWED["entry"] = set(ALLOWED) | {"viewer", "schemas"}
+ALLOWED["cli"] = set(ALLOWED) | {"viewer", "schemas"}
+ALLOWED["entry"] = ALLOWED["cli"] | {"cli"}
+ALLOWED["main"] = ALLOWED["entry"] | {"entry"}
 
-#: Top-level modules and packages of the entry layer (the ``truckrl`` command's subcommands).
-ENTRY = {"__main__", "main", "cli", "train", "evaluate", "play", "export", "plan", "bench", "tools"}
+#: Top-level modules and packages of the entry layer: the commands of ``truckrl``.
+ENTRY = {"train", "evaluate", "play", "export", "plan", "bench", "tools"}
 #: Task-folder modules (by their first name inside the folder) that sit above the task layer.
 TASK_ROLES = {"expert": "planning", "diagnosis": "evaluation"}
 
@@ -70,6 +75,10 @@ def layer_of(module: str) -> str:
         return TASK_ROLES.get(role, "task")
     if head in ENTRY:
         return "entry"
+    if head == "cli":
+        return "cli"
+    if head == "__main__":
+        return "main"
     if head in ALLOWED:
         return head
     raise KeyError(f"{module} has no layer")
@@ -123,6 +132,19 @@ def test_core_layers_do_not_import_torchrl_or_hydra(layer):
                 assert m.split(".")[0] not in {"torchrl", "hydra", "omegaconf"}, (p, m)
 
 
+@pytest.mark.parametrize("path", FILES, ids=lambda p: str(p.relative_to(PKG)))
+def test_no_command_imports_another(path):
+    """A helper two commands share belongs in a lower layer, not in one of them."""
+    name = module_name(path)
+    if layer_of(name) != "entry":
+        return
+    head = name.split(".")[1]
+    others = {
+        m for m in truckrl_imports(path) if layer_of(m) == "entry" and m.split(".")[1] != head
+    }
+    assert not others, f"{path.relative_to(PKG)} imports the commands {sorted(others)}"
+
+
 def test_layer_of_knows_the_roles():
     """The map itself, on hand-picked modules (a wrong map would let any import through)."""
     assert layer_of("truckrl.tasks.uturn.task") == "task"
@@ -131,6 +153,7 @@ def test_layer_of_knows_the_roles():
     assert layer_of("truckrl.config.fields") == "config"
     assert layer_of("truckrl.config.schemas") == "schemas"
     assert layer_of("truckrl.tools.paths") == "entry"
+    assert layer_of("truckrl.cli") == "cli" and layer_of("truckrl.__main__") == "main"
     with pytest.raises(KeyError):
         layer_of("truckrl.nowhere")
     assert "viz" not in ALLOWED["env"] and "env" not in ALLOWED["viz"]

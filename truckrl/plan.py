@@ -109,11 +109,10 @@ def scene_indices(env_cfg: Any, args: PlanConfig):
     """
     if not args.category:
         return None
-    from truckrl.evaluation.categories import task_bins
+    from truckrl.evaluation.categories import category_mask, task_bins
     from truckrl.evaluation.rollout import SCENE_INFO_ENTRIES
     from truckrl.planning import held_out_states
     from truckrl.sim.vehicle import trailer_length
-    from truckrl.tools.paths import category_mask
 
     states = held_out_states(env_cfg, args.episodes, args.seed, args.device, args.difficulty)
     info = {"trailer_length": trailer_length(states["params"])}

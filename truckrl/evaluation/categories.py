@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 import torch
 from torch import Tensor
 
+from truckrl.config.fields import ConfigError
 from truckrl.tasks import Quantity, task_class
 from truckrl.tasks.goals import POSE_ERRORS
 
@@ -31,6 +32,27 @@ def task_bins(task: str, info: Mapping[str, Tensor]) -> dict[str, dict[str, Tens
     """The category bins of task ``task``'s episodes (``Task.category_bins``), or None where it
     declares none."""
     return task_class(task).category_bins(info)
+
+
+def category_mask(
+    bins: Mapping[str, Mapping[str, Tensor]] | None,
+    categories: tuple[str, ...],
+    task: str,
+    keep: Tensor,
+) -> Tensor:
+    """``keep`` (bool ``[E]``) and the masks of ``categories``, each ``"DIMENSION BIN"`` as the
+    category table prints it, out of ``bins`` (``{dimension: {bin: bool [E]}}``).
+
+    Raises:
+        ConfigError: a category the task does not have (the message lists those it has).
+    """
+    named = {f"{dim} {b}": m for dim, group in (bins or {}).items() for b, m in group.items()}
+    for c in categories:
+        if c not in named:
+            known = ", ".join(repr(n) for n in named) or "none"
+            raise ConfigError(f"category = {c!r}: task {task!r} has the categories {known}")
+        keep = keep & named[c].to(keep.device)
+    return keep
 
 
 def summarize_by_category(

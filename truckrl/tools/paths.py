@@ -75,26 +75,10 @@ def select(results: dict, task: str, categories: tuple[str, ...]):
     task's bins (:meth:`truckrl.tasks.Task.category_bins`) of ``results``' scene info."""
     import torch
 
-    from truckrl.evaluation.categories import task_bins
+    from truckrl.evaluation.categories import category_mask, task_bins
 
     keep = torch.ones_like(results["success"])
     return category_mask(task_bins(task, results) if categories else {}, categories, task, keep)
-
-
-def category_mask(bins: dict | None, categories: tuple[str, ...], task: str, keep):
-    """``keep`` (bool ``[E]``) and the masks of ``categories``, each ``"DIMENSION BIN"`` as the
-    category table prints it, out of ``bins`` (``{dimension: {bin: bool [E]}}``).
-
-    Raises:
-        ConfigError: a category the task does not have (the message lists those it has).
-    """
-    named = {f"{dim} {b}": m for dim, group in (bins or {}).items() for b, m in group.items()}
-    for c in categories:
-        if c not in named:
-            known = ", ".join(repr(n) for n in named) or "none"
-            raise ConfigError(f"category = {c!r}: task {task!r} has the categories {known}")
-        keep = keep & named[c].to(keep.device)
-    return keep
 
 
 def run(cfg: PathsConfig) -> dict:
