@@ -21,7 +21,9 @@ from tests.test_layers import ALLOWED, FILES, layer_of, module_name, truckrl_imp
 
 #: Drawing order, top to bottom (the entry points on top, as in docs/architecture.md).
 ORDER = (
+    "main",
     "entry",
+    "cli",
     "schemas",
     "viewer",
     "rl",
