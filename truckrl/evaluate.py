@@ -1,6 +1,6 @@
 """``truckrl eval``: score a checkpoint on fixed seeded scenes with the mean action.
 
-    truckrl eval checkpoint=outputs/2025-01-01/12-00-00 difficulty=2 episodes=200
+    truckrl eval checkpoint=outputs/DATE/TIME difficulty=2 episodes=200
 
 Runs one deterministic episode in each of ``episodes`` scenes drawn from ``seed`` (the same seed
 gives the same scenes, so checkpoints are compared on identical tasks) at ``difficulty`` (default:

@@ -2,7 +2,7 @@
 
     truckrl play                                   # keyboard, paper controls
     truckrl play control=speed_angle seed=3 difficulty=2
-    truckrl play checkpoint=outputs/2025-01-01/12-00-00      # watch a policy (M: take over)
+    truckrl play checkpoint=outputs/DATE/TIME      # watch a policy (M: take over)
     truckrl play headless=true checkpoint=<run> record=run.mp4   # no window: to video
     truckrl play headless=true actions=docs/play_keys.txt strip=docs/play_strip.png
 

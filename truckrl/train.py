@@ -1,7 +1,7 @@
 """``truckrl train``: PPO on TruckEnv with the success curriculum (the paper's setup).
 
     truckrl train                                         # experiment=demos (CPU), paper curriculum
-    truckrl train resume=outputs/2025-01-01/12-00-00      # continue a stopped run
+    truckrl train resume=outputs/DATE/TIME      # continue a stopped run
     truckrl train --help                                  # options and examples
 
 The loop is a :class:`~truckrl.rl.trainer.Trainer`: each iteration collects ``collector.workers
