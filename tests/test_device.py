@@ -1,6 +1,6 @@
 """Device placement: what keeps ``device=cuda`` correct on a machine without a GPU.
 
-The CUDA path is guarded three ways (the CUDA-only tests ran on an H100, README, Benchmarks, GPU):
+The CUDA path is guarded three ways (the CUDA-only tests ran on an H100, docs/benchmarks.md, GPU):
 
 * a static scan of the step path (simulator, tasks, env adapter, PPO): every tensor factory call
   names its ``device=``, except the listed host-side helpers (oracles, index tables that move with
@@ -149,7 +149,7 @@ def test_cuda_collector_and_ppo_iteration_stay_on_the_gpu():
 @cuda
 def test_cuda_demonstrations_plan_and_clone_on_the_gpu():
     """experiment=gpu_demos' start: the planner plans on the GPU and the cloned actor stays there
-    (ran on an H100 inside a whole run, README, Benchmarks, GPU)."""
+    (ran on an H100 inside a whole run, docs/benchmarks.md, GPU)."""
     from truckrl.config.schemas import DemosConfig
     from truckrl.rl.config import ModelConfig
     from truckrl.rl.imitation import bootstrap

@@ -194,7 +194,7 @@ def test_init_starts_a_new_run_from_another_runs_weights(run_dir, tmp_path):
 
 
 def test_fine_tune_of_the_shipped_policy_names_its_beams(tmp_path):
-    """The README's fine-tune: the shipped policy sees 16 beams, the default run 32; without
+    """The fine-tune of docs/training.md: the shipped policy sees 16 beams, the default run 32; without
     ``env.lidar.num_beams=16`` the run stops in one line that says so, with it the run starts
     from those weights."""
     proc = train("init=pretrained", f"hydra.run.dir={tmp_path / 'a'}", check=False)

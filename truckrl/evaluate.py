@@ -179,7 +179,7 @@ def _run_checkpoint(ec: EvaluateConfig):
 
 def planner_config():
     """The planner's settings for ``policy=planner``: the defaults of
-    :class:`~truckrl.planning.PlannerConfig` (the README's baseline)."""
+    :class:`~truckrl.planning.PlannerConfig` (the baseline of docs/planner.md)."""
     from truckrl.planning import PlannerConfig
 
     return PlannerConfig()

@@ -38,7 +38,7 @@ def test_experiment_preset_composes():
     assert tc.env.task.name == "uturn"
     assert tc.env.max_steps == 1000 and tc.ppo.gamma == 0.998
     assert tc.env.task.observe_route  # P, T and the branch axis observed
-    assert tc.demos.episodes == 0  # no driven demonstrations (README, "Reversing")
+    assert tc.demos.episodes == 0  # no driven demonstrations (docs/reversing.md)
     assert tc.collector.num_envs == 1024  # the fast layout underneath
 
 

@@ -3,7 +3,7 @@
 Every default lives in a dataclass field (:func:`truckrl.config.fields.param`: default, range,
 unit, meaning); YAML files under ``truckrl/conf/`` hold only presets that differ from them (``ppo/fast``,
 ``experiment/*``, ``control/*``, ``curriculum/none``, ``launch/*``). ``truckrl tools configs
-[PREFIX]`` prints every field as a table (what the README's configuration section points to).
+[PREFIX]`` prints every field as a table (what docs/configuration.md points to).
 
 Hydra groups (``register()``): ``task`` (one per task module, placed at ``env.task``), ``ppo``,
 ``curriculum``, ``model`` (``paper`` = the dataclass defaults) and the schemas ``train_schema``,
@@ -107,9 +107,9 @@ RESUME_OVERRIDES = (
 
 @dataclass
 class DemosConfig:
-    """A start cloned from demonstrations (the CEM planner's, or for ``uturn`` the scripted
-    turnaround's), made by the run itself before PPO (``truckrl/rl/imitation.py``; README,
-    "Learning quality", "Reversing"). Skipped on resume.
+    """A start cloned from demonstrations (the CEM planner's, or a task folder's own
+    demonstrator), made by the run itself before PPO (``truckrl/rl/imitation.py``;
+    docs/training.md, docs/reversing.md). Skipped on resume.
 
     With ``bc_coeff > 0`` the demonstrations also stay in the PPO update as a cloning term whose
     weight decays to 0 over ``bc_frames`` (kept in ``<run dir>/demos.pt`` for a resume).

@@ -257,7 +257,7 @@ class SceneConfig:
         unit="trailer wheelbases",
         doc="left turns: the goal lies at least (tan(turn / 2) + this) x trailer wheelbase past "
         "the corner of the start and goal lanes (0 = no such rule: experiment=paper)",
-        source="measured with truckrl plan (README, Scenes that are solvable)",
+        source="measured with truckrl plan (docs/planner.md, Scenes that are solvable)",
     )
 
     def __post_init__(self) -> None:

@@ -1,7 +1,7 @@
 """A scripted three-point turn for task ``uturn``: demonstrations, and a lower bound on solvability.
 
 The CEM planner (:mod:`truckrl.planning`) does not find the forward-reverse-forward sequence of
-a turnaround with its smooth knots (README, "Reversing"); this feedback driver does, with one of a
+a turnaround with its smooth knots (docs/reversing.md); this feedback driver does, with one of a
 few settings per scene. It is the task's expert (the contract is in :mod:`truckrl.planning`):
 :func:`demonstrations` is what ``demos.source=driver`` clones.
 
