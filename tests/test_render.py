@@ -1,0 +1,130 @@
+"""docs/render.py: committed JSON into Markdown fragments (tables and provenance lines).
+
+The fixtures under ``tests/fixtures/render/`` are small files of each kind: an aggregate over
+seeds with its own provenance, an evaluation and a benchmark record as their commands write them
+(no provenance object). Every expected string is written out by hand.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+FIXTURES = Path(__file__).resolve().parent / "fixtures" / "render"
+
+
+@pytest.fixture(scope="module")
+def render():
+    spec = importlib.util.spec_from_file_location("docs_render", ROOT / "docs" / "render.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture
+def out(render, tmp_path):
+    (tmp_path / "stale.md").parent.mkdir(parents=True, exist_ok=True)
+    (tmp_path / "stale.md").write_text("left from an earlier build")
+    render.render(FIXTURES, tmp_path)
+    return tmp_path
+
+
+def test_the_out_folder_holds_exactly_the_fragments(out):
+    names = sorted(str(p.relative_to(out)) for p in out.rglob("*.md"))
+    assert names == [
+        "benchmarks/env.md",
+        "results/dock-bins.md",
+        "results/dock.md",
+        "seeds.md",
+        "seeds/demos-bins.md",
+        "seeds/demos.md",
+    ]
+
+
+def test_seeds_aggregate_table_and_provenance(out):
+    text = (out / "seeds" / "demos.md").read_text()
+    assert text == (
+        "| metric | IQM | 95 % CI | per seed | n seeds |\n"
+        "|---|---:|---:|---:|---:|\n"
+        "| heldout_success | 97.4 % | [97.0 %, 98.1 %] | 0: 97.1 %, 1: 97.4 %, 2: 98.1 % | 3 |\n"
+        "| minutes_to_difficulty_6 [min] | 15.8 | [9.3, 16.5] | 0: 15.8, 1: 16.5, 2: 9.3 | 3 |\n"
+        "| frames_to_difficulty_6 [frames] | 30,100,000 | [12,700,000, 35,000,000] "
+        "| 0: 30,100,000, 1: 35,000,000, 2: 12,700,000 | 3 |\n"
+        "\n"
+        "*Provenance:* `truckrl tools aggregate outputs/seeds/seed-0 outputs/seeds/seed-1 "
+        "outputs/seeds/seed-2 out=docs/data/seeds/demos.json` · machine: 2-core x86-64 VM · "
+        "torch threads: 2 · commit `0123456789` · date: 2030-01-02\n"
+    )
+
+
+def test_seeds_bins_and_the_seeds_page_fragment(out):
+    bins = (out / "seeds" / "demos-bins.md").read_text()
+    row = (
+        "| turn [deg] right 110-180 | 88.9 % | [87.3 %, 92.1 %] | 0: 88.9 %, 1: 92.1 %, 2: 87.3 % "
+    )
+    row += "| 3 |"
+    assert row in bins
+    page = (out / "seeds.md").read_text()
+    assert page.startswith("### experiment=demos\n\n| metric | IQM |")
+    assert page.count("*Provenance:*") == 2
+
+
+def test_no_aggregate_names_the_command(render, tmp_path):
+    data = tmp_path / "data"
+    (data / "results").mkdir(parents=True)
+    (data / "results" / "dock.json").write_text((FIXTURES / "results" / "dock.json").read_text())
+    render.render(data, tmp_path / "out")
+    text = (tmp_path / "out" / "seeds.md").read_text()
+    assert "No aggregate over seeds is committed yet" in text
+    assert "`truckrl tools aggregate RUN_DIRS... out=docs/data/seeds/NAME.json`" in text
+
+
+def test_evaluation_summary_bins_and_reconstructed_provenance(out):
+    line = (
+        "*Provenance:* `truckrl eval checkpoint=pretrained:dock difficulty=7 episodes=1000 "
+        "seed=12345` (reconstructed) · machine: not recorded · commit: not recorded · "
+        "date: not recorded\n"
+    )
+    summary = (out / "results" / "dock.md").read_text()
+    assert summary == (
+        "| difficulty (tolerance) | episodes | success | collision | jack-knife | timeout "
+        "| trailer rear error [m] mean / p95 |\n"
+        "|---|---:|---:|---:|---:|---:|---:|\n"
+        "| 7 (0.15 m, 5.73°) | 1,000 | 81.6 % | 11.4 % | 0.2 % | 6.8 % | 2.62 / 14.6 |\n"
+        "\n" + line
+    )
+    bins = (out / "results" / "dock-bins.md").read_text()
+    assert bins == (
+        "| dimension | bin | episodes | success | collision | jack-knife | timeout |\n"
+        "|---|---|---:|---:|---:|---:|---:|\n"
+        "| neighbours | none | 280 | 87.9 % | 5.0 % | 0.0 % | 7.1 % |\n"
+        "|  | both | 390 | 72.6 % | 20.0 % | 0.4 % | 7.0 % |\n"
+        "| bay width [m] | 3.5-4 | 500 | 79.0 % | 13.0 % | 0.0 % | 8.0 % |\n"
+        "\n" + line
+    )
+
+
+def test_bench_env_pivots_compile_modes_and_reads_provenance_from_the_record(out):
+    text = (out / "benchmarks" / "env.md").read_text()
+    assert text == (
+        "| layout | processes × trucks | eager | compiled |\n"
+        "|---|---|---:|---:|\n"
+        "| one batched TruckEnv | 1 × 4,096 | 336,544 | 659,706 |\n"
+        "| ParallelEnv of batched TruckEnvs | 2 × 512 | – | 163,271 |\n"
+        "\n"
+        "*Provenance:* `truckrl bench env envs=[4096] parallel_envs=[1024] workers=2 steps=50 "
+        "warmup=5 compile=both collector=false device=cuda paper=false` (reconstructed) · "
+        "machine: NVIDIA H100 80GB HBM3, 16 CPU cores, torch 2.11.0+cu130, load average 3.2 · "
+        "torch threads: 16 · commit: not recorded · date: 2030-01-02 07:47\n"
+    )
+
+
+def test_an_unknown_file_is_refused_by_name(render, tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "odd.json").write_text('{"rows": []}')
+    with pytest.raises(SystemExit, match="odd.json: not a seeds aggregate"):
+        render.render(data, tmp_path / "out")
