@@ -27,10 +27,10 @@ class InPlaceAutoReset:
     """Mixin for a batched ``EnvBase`` (list it before ``EnvBase``) of ``batch_size=[N]`` with one
     ``done`` ``[N, 1]`` at the root.
 
-    The subclass provides :meth:`_restart` and :attr:`_reset_zero_keys`, the same contract as its
-    ``_reset`` on a partial reset. The root that :meth:`_step_and_maybe_reset` returns is what
+    The subclass provides ``_restart`` and ``_reset_zero_keys``, the same contract as its
+    ``_reset`` on a partial reset. The root that ``_step_and_maybe_reset`` returns is what
     TorchRL's merge gives, bit for bit: the restarted rows of each observation leaf from
-    :meth:`_restart`; zeros on the restarted rows for the keys in :attr:`_reset_zero_keys`; and
+    ``_restart``; zeros on the restarted rows for the keys in ``_reset_zero_keys``; and
     for anything else at the root (the action, a policy's outputs) zeros on those rows too when
     only some trucks restart (the merge's zero padding), but the old values when all of them do
     (TorchRL then updates the root instead of merging).

@@ -20,27 +20,27 @@ Numeric observation (index -> meaning -> normalisation). ``theta`` tractor headi
 articulation, ``psi_g`` goal heading; geometry and limits map their configured ``[min, max]``
 range onto ``[-1, 1]``:
 
-=====  ==================================================  ==============================
-index  meaning                                             normalisation
-=====  ==================================================  ==============================
+=====  ===================================================  ==============================
+index  meaning                                              normalisation
+=====  ===================================================  ==============================
 0, 1   goal rear axle in the tractor frame (x fwd, y left)  / 50 m (paper)
-2, 3   sin, cos of (psi_g - theta)                         -
-4, 5   sin, cos of (psi_g - theta - phi)  (trailer)        -
-6, 7   sin, cos of phi                                     -
-8..13  speed, accel, jerk, steer, steer rate, steer accel  / their per-truck limit
-14     wheelbase L_t                                       range -> [-1, 1]
-15     kingpin offset a_tk                                 range -> [-1, 1]
-16     trailer wheelbase L_ka                              range -> [-1, 1]
-17     tractor front overhang                              range -> [-1, 1]
-18     tractor rear overhang                               range -> [-1, 1]
-19     tractor width                                       range -> [-1, 1]
-20     trailer rear overhang                               range -> [-1, 1]
-21     trailer width                                       range -> [-1, 1]
-22     max steering angle                                  range -> [-1, 1]
-23     max speed                                           range -> [-1, 1]
-24     limit of the longitudinal command (mode's)          range -> [-1, 1]
-25     limit of the lateral command (mode's)               range -> [-1, 1]
-=====  ==================================================  ==============================
+2, 3   sin, cos of (psi_g - theta)                          -
+4, 5   sin, cos of (psi_g - theta - phi)  (trailer)         -
+6, 7   sin, cos of phi                                      -
+8..13  speed, accel, jerk, steer, steer rate, steer accel   / their per-truck limit
+14     wheelbase L_t                                        range -> [-1, 1]
+15     kingpin offset a_tk                                  range -> [-1, 1]
+16     trailer wheelbase L_ka                               range -> [-1, 1]
+17     tractor front overhang                               range -> [-1, 1]
+18     tractor rear overhang                                range -> [-1, 1]
+19     tractor width                                        range -> [-1, 1]
+20     trailer rear overhang                                range -> [-1, 1]
+21     trailer width                                        range -> [-1, 1]
+22     max steering angle                                   range -> [-1, 1]
+23     max speed                                            range -> [-1, 1]
+24     limit of the longitudinal command (mode's)           range -> [-1, 1]
+25     limit of the lateral command (mode's)                range -> [-1, 1]
+=====  ===================================================  ==============================
 
 The LiDAR sits at the centre of the tractor body; beam ``i`` points ``beam_angles(R, fov)[i]``
 from the tractor heading. Reward, success and termination: :mod:`truckrl.tasks.intersection.task`.

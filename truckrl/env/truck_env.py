@@ -42,7 +42,7 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
     Args:
         num_envs: number of trucks N held as one batch (``batch_size=[N]``).
         device: torch device for all state and outputs.
-        config: :class:`~truckrl.tasks.EnvConfig`, a mapping of its fields, or ``None``.
+        config: :class:`~truckrl.tasks.config.EnvConfig`, a mapping of its fields, or ``None``.
         seed: seed of the scene/vehicle generator; ``None`` draws one from torch's global RNG.
     """
 

@@ -64,7 +64,7 @@ def evaluate_policy(
         ``[E, T + 1, 4]``: the pose ``(x, y, heading, articulation)`` [m, m, rad, rad] at the
         start and after each step, held at its last value once the episode has ended (``T``:
         the steps the batch ran); the start states themselves (the scenes) are
-        :func:`truckrl.planning.held_out_states` of the same env config, seed and
+        ``truckrl.planning.held_out_states`` of the same env config, seed and
         difficulty.
     """
     # eager: a one-off batch does not repay the compile time

@@ -51,11 +51,11 @@ class Trainer:
     """One training job (or, with a loaded checkpoint ``state``, its continuation).
 
     Args:
-        tc: the :class:`~truckrl.config.schemas.TrainConfig`.
+        tc: the ``truckrl.config.schemas.TrainConfig``.
         run_dir: where checkpoints, events, videos and records go.
         state: a loaded checkpoint to resume from (None: a new run).
-        parent: the run a branch continues (:func:`~truckrl.rl.session.plan_session`).
-        stop: installed :class:`~truckrl.rl.session.StopSignals` (default: none installed).
+        parent: the run a branch continues (``truckrl.rl.session.plan_session``).
+        stop: installed ``truckrl.rl.session.StopSignals`` (default: none installed).
         init: a loaded checkpoint whose network weights start a new run (``tc.init``; ignored
             when resuming).
         source: the source's git revision, recorded in every checkpoint (the entry point reads
@@ -336,7 +336,7 @@ class Trainer:
 
 def bc_weight(dc: Any, frames: int) -> float:
     """The cloning term's weight after ``frames`` frames: ``dc.bc_coeff`` falling linearly to 0
-    at ``dc.bc_frames`` (:class:`~truckrl.config.schemas.DemosConfig`)."""
+    at ``dc.bc_frames`` (``DemosConfig`` in ``truckrl.config.schemas``)."""
     return dc.bc_coeff * max(0.0, 1.0 - frames / dc.bc_frames)
 
 
@@ -375,7 +375,7 @@ def cloning_samples(
 
 def clone_demonstrations(ac: Any, tc: Any, env: Any) -> tuple[dict, Any]:
     """``demos.episodes`` planner (or scripted-driver) solutions cloned into ``ac``
-    (:func:`imitation.bootstrap`); returns its summary and the samples. A demonstrator that
+    (``truckrl.rl.imitation.bootstrap``); returns its summary and the samples. A demonstrator that
     solves nothing is a one-line :class:`ConfigError`."""
     from truckrl.rl.imitation import bootstrap
 

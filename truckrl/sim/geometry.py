@@ -42,7 +42,7 @@ def to_local(xy: Tensor, origin: Tensor, heading: Tensor) -> Tensor:
     """World points ``xy [..., P, 2]`` into the frame at ``origin [..., 2]``, ``heading [...]``.
 
     The same arithmetic as ``rotate(xy - origin, -heading)``, with the cosine and sine of each
-    heading computed once (:func:`_once`): under ``torch.compile`` inductor otherwise recomputes
+    heading computed once (``_once``): under ``torch.compile`` inductor otherwise recomputes
     them for every one of the ``P`` points it rotates.
     """
     c, s = _frame(heading)
@@ -70,7 +70,7 @@ def segments_to_local(
 
 def unit_vectors(angles: Tensor) -> Tensor:
     """``(cos, sin)`` of ``angles [...]`` [rad] as ``[..., 2]``, computed once under
-    ``torch.compile`` (:func:`_once`) instead of inlined into every consumer."""
+    ``torch.compile`` (``_once``) instead of inlined into every consumer."""
     return _once(torch.stack((torch.cos(angles), torch.sin(angles)), dim=-1))
 
 

@@ -85,10 +85,12 @@ def sensor_origin(pose: Tensor, params: Any) -> Tensor:
 class Task:
     """One task: its episodes, errors, success test, reward terms and observation extras.
 
+    A subclass sets the class attributes listed under Attributes.
+
     Args:
         cfg: the env config; ``cfg.task`` must be an instance of :attr:`config_class`.
 
-    Class attributes a subclass sets:
+    Attributes:
         name: the task's name (its module name).
         config_class: its :class:`TaskConfig` subclass.
         error_quantities: the errors to the goal it reports, in state and outputs.
