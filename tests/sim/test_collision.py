@@ -1,10 +1,12 @@
 """Body collision: the box clip against independent answers (contour test, dense sampling)."""
 
+import math
+
+import numpy as np
 import torch
 
 from truckrl.sim.collision import contour_collides, truck_collides
 from truckrl.sim.geometry import (
-    point_segment_distance,
     polygon_segments,
     rectangle_corners,
     segment_box_overlap,
@@ -64,21 +66,134 @@ def test_box_overlap_hand_cases():
     assert got[0].tolist() == [True, True, True, False, False, False, False]
 
 
-def test_truck_collides_agrees_with_outline_contour_on_crossing_segments():
+def _rect_by_hand(ref, heading, ahead, behind, half):
+    """Corners ``[..., 4, 2]`` of a rectangle reaching ``ahead`` / ``behind`` metres from
+    ``ref [..., 2]`` along ``heading`` [rad] and ``half`` to each side (numpy, float64)."""
+    u = np.stack((np.cos(heading), np.sin(heading)), -1)
+    v = np.stack((-u[..., 1], u[..., 0]), -1)
+    along = np.stack((ahead, ahead, -behind, -behind), -1)[..., None]
+    across = np.stack((-half, half, half, -half), -1)[..., None]
+    return ref[..., None, :] + along * u[..., None, :] + across * v[..., None, :]
+
+
+def _truck_by_hand(pose, p, grow=0.0):
+    """Tractor and trailer corners ``[N, 4, 2]`` from the documented dimensions
+    (``truckrl/sim/vehicle.py`` module doc), every side moved out by ``grow`` [m]: the tractor
+    spans ``wheelbase + front_overhang`` ahead of its rear axle and ``rear_overhang`` behind; the
+    kingpin is ``kingpin_offset`` behind the rear axle; the trailer, heading ``theta + phi``,
+    spans ``trailer_front_overhang`` ahead of the kingpin and ``trailer_wheelbase +
+    trailer_rear_overhang`` behind."""
+    p = {k: v.double().numpy() for k, v in p.items()}
+    x, y, th, phi = pose.double().numpy().T
+    axle = np.stack((x, y), -1)
+    tractor = _rect_by_hand(
+        axle,
+        th,
+        p["wheelbase"] + p["front_overhang"] + grow,
+        p["rear_overhang"] + grow,
+        0.5 * p["tractor_width"] + grow,
+    )
+    kingpin = axle - p["kingpin_offset"][:, None] * np.stack((np.cos(th), np.sin(th)), -1)
+    trailer = _rect_by_hand(
+        kingpin,
+        th + phi,
+        p["trailer_front_overhang"] + grow,
+        p["trailer_wheelbase"] + p["trailer_rear_overhang"] + grow,
+        0.5 * p["trailer_width"] + grow,
+    )
+    return tractor, trailer
+
+
+def _sat_overlap(seg, corners):
+    """Whether segments ``[N, E, 4]`` share a point with filled rectangles ``[N, 4, 2]``
+    (separating-axis test: disjoint iff the projections on a rectangle axis or on the segment
+    normal are disjoint)."""
+    ends = seg.reshape(*seg.shape[:-1], 2, 2)  # [N, E, 2, 2]
+    edge1 = corners[:, 1] - corners[:, 0]  # across the rectangle
+    edge2 = corners[:, 0] - corners[:, 3]  # along it
+    d = ends[..., 1, :] - ends[..., 0, :]
+    axes = [
+        np.broadcast_to(edge1[:, None], d.shape),
+        np.broadcast_to(edge2[:, None], d.shape),
+        np.stack((-d[..., 1], d[..., 0]), -1),
+    ]
+    separated = np.zeros(seg.shape[:-1], dtype=bool)
+    for a in axes:
+        pc = np.einsum("nkc,nec->nek", corners, a)  # [N, E, 4]
+        ps = np.einsum("nejc,nec->nej", ends, a)  # [N, E, 2]
+        separated |= (ps.max(-1) < pc.min(-1)) | (ps.min(-1) > pc.max(-1))
+    return ~separated
+
+
+def _inside(points, corners):
+    """Whether points ``[N, E, 2]`` lie in the filled rectangles ``[N, 4, 2]``."""
+    inside = np.ones(points.shape[:-1], dtype=bool)
+    for i in range(4):
+        a = corners[:, i, None]
+        edge, rel = corners[:, (i + 1) % 4, None] - a, points - a
+        cross = edge[..., 0] * rel[..., 1] - edge[..., 1] * rel[..., 0]
+        inside &= cross >= 0  # counter-clockwise corners: the inside is on the left of each edge
+    return inside
+
+
+def test_truck_collides_matches_a_separating_axis_oracle_of_the_documented_bodies():
     gen = torch.Generator().manual_seed(1)
-    n = 500
+    n, e, mm = 400, 16, 1e-3
     params = sample_vehicle_params(VehicleConfig(), n, gen)
     pose = torch.zeros(n, 4)
-    pose[:, 3] = torch.rand(n, generator=gen) - 0.5
-    segs = torch.rand(n, 10, 4, generator=gen) * 40 - 20
-    mask = torch.rand(n, 10, generator=gen) > 0.3
-    contour = contour_collides(vehicle_outline(pose, params), segs, mask)
-    body = truck_collides(pose, params, segs, mask)
-    # the body test also sees segments wholly inside a body; random 20 m segments never are,
-    # so on this data both must agree exactly, and they must disagree nowhere else
-    far = point_segment_distance(pose[:, None, :2], segs)[:, 0] > 30
-    assert torch.equal(body, contour)
-    assert not body[far.all(-1)].any()
+    pose[:, :2] = torch.rand(n, 2, generator=gen) * 20 - 10
+    pose[:, 2] = (torch.rand(n, generator=gen) * 2 - 1) * math.pi
+    pose[:, 3] = (torch.rand(n, generator=gen) * 2 - 1) * 1.2
+    # segment centres near the truck (3 in 4 within +-12 m of its axle) or anywhere in +-45 m;
+    # half of them short (< 1 m, some wholly inside a body), half up to 24 m long
+    spread = torch.where(torch.arange(e) < 3 * e // 4, 12.0, 45.0)
+    mid = pose[:, None, :2] + (torch.rand(n, e, 2, generator=gen) * 2 - 1) * spread[:, None]
+    length = torch.rand(n, e, generator=gen) * torch.where(torch.arange(e) % 2 == 0, 1.0, 24.0)
+    ang = torch.rand(n, e, generator=gen) * 2 * math.pi
+    half = 0.5 * length[..., None] * torch.stack((ang.cos(), ang.sin()), -1)
+    segs = torch.cat((mid - half, mid + half), -1)
+    mask = torch.rand(n, e, generator=gen) > 0.2
+    # one truck per (truck, segment) pair, so each pair gets its own answer
+    rep = {k: v.repeat_interleave(e) for k, v in params.items()}
+    got = truck_collides(pose.repeat_interleave(e, 0), rep, segs.reshape(-1, 1, 4))
+    got = got.reshape(n, e).numpy()
+    masked = truck_collides(pose, params, segs, mask).numpy()
+
+    s = segs.double().numpy()
+    grown, shrunk = _truck_by_hand(pose, params, mm), _truck_by_hand(pose, params, -mm)
+    hit = _sat_overlap(s, shrunk[0]) | _sat_overlap(s, shrunk[1])  # overlaps by > 1 mm
+    miss = ~(_sat_overlap(s, grown[0]) | _sat_overlap(s, grown[1]))  # clear by > 1 mm
+    assert (hit | miss).mean() > 0.999  # pairs within 1 mm of touching are left out
+    assert got[hit].all() and not got[miss].any()
+    # with the padding mask: a truck collides iff a valid segment overlaps it
+    valid = mask.numpy()
+    assert masked[(hit & valid).any(-1)].all() and not masked[(miss | ~valid).all(-1)].any()
+    # the data holds every case: hits on each body, segments wholly inside a body (no edge
+    # crossed), and segments beyond the truck's reach (> 16 m from its rear axle: the trailer
+    # rear is at most 0.3 + 11 + 3.5 = 14.8 m behind it, 1.3 m to the side)
+    a, b = s[..., :2] - pose[:, None, :2].numpy(), s[..., 2:] - pose[:, None, :2].numpy()
+    t = np.clip(-(a * (b - a)).sum(-1) / np.maximum(((b - a) ** 2).sum(-1), 1e-12), 0, 1)
+    far = np.linalg.norm(a + t[..., None] * (b - a), axis=-1) > 16.0
+    assert far.sum() > 1000 and miss[far].all() and not got[far].any()
+    assert _sat_overlap(s, shrunk[0]).sum() > 100 and _sat_overlap(s, shrunk[1]).sum() > 100
+    assert 0.1 < hit.mean() < 0.5
+    # the contour test sees a body when the segment crosses its boundary (overlaps the shrunk
+    # body, an end outside the grown one), not when the segment lies wholly inside (both ends in
+    # the shrunk, convex body) or misses it
+    crosses, clear = [], []
+    for big, small in zip(grown, shrunk, strict=True):
+        ends_in_big = _inside(s[..., :2], big), _inside(s[..., 2:], big)
+        wholly_inside = _inside(s[..., :2], small) & _inside(s[..., 2:], small)
+        crosses.append(_sat_overlap(s, small) & ~(ends_in_big[0] & ends_in_big[1]))
+        clear.append(~_sat_overlap(s, big) | wholly_inside)
+    contour_hit, contour_miss = crosses[0] | crosses[1], clear[0] & clear[1]
+    assert (contour_hit | contour_miss).mean() > 0.999
+    assert (hit & contour_miss).sum() > 20  # segments wholly inside a body occur
+    contour = contour_collides(
+        vehicle_outline(pose.repeat_interleave(e, 0), rep), segs.reshape(-1, 1, 4)
+    )
+    contour = contour.reshape(n, e).numpy()
+    assert contour[contour_hit].all() and not contour[contour_miss].any()
 
 
 def _reference_box_overlap(segments, cx, cy, heading, front, rear, half_width, mask=None):
