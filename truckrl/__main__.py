@@ -37,6 +37,8 @@ TOOLS = {
     "scenes": ("truckrl.tools.scenes", "render random scenes of a task to a PNG"),
     "curves": ("truckrl.tools.curves", "a run's learning curves as a PNG"),
     "configs": ("truckrl.tools.configs", "every config field: default, unit, range, meaning"),
+    "aggregate": ("truckrl.tools.aggregate", "runs over seeds: per-seed figures, IQM, 95 % CI"),
+    "pretrained": ("truckrl.tools.pretrained", "rebuild a task's shipped policy and its card"),
 }
 
 
