@@ -316,7 +316,7 @@ def lidar_tables(doc: dict[str, Any]) -> dict[str, Table]:
     ]
     scans = [
         [
-            str(r["N"]),
+            f"{r['N']:,}",
             num(r.get("batched_scans_per_s")),
             num(r.get("compiled_scans_per_s")),
             num(max(r.get("batched_vs_sweep", 0), r.get("compiled_vs_sweep", 0))) + " ×",
