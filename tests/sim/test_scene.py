@@ -403,7 +403,8 @@ def test_assign_overwrites_only_the_indexed_scenes():
     cfg = SceneConfig()
     big, _ = make(cfg, 10, 1)
     small, _ = make(cfg, 3, 2)
-    before = big.to("cpu")
+    # a copy of every field (SceneBatch.to on the tensors' own device returns the same tensors)
+    before = SceneBatch(**{f.name: getattr(big, f.name).clone() for f in dataclasses.fields(big)})
     idx = torch.tensor([7, 0, 4])
     big.assign(idx, small)
     rest = torch.tensor([i for i in range(10) if i not in (7, 0, 4)])
@@ -411,6 +412,8 @@ def test_assign_overwrites_only_the_indexed_scenes():
         new, old, src = getattr(big, f.name), getattr(before, f.name), getattr(small, f.name)
         assert torch.equal(new[idx], src), f.name
         assert torch.equal(new[rest], old[rest]), f.name
+    # no start pose of one batch is in the other, so a write to the wrong scenes shows
+    assert not (before.start[:, None] == small.start[None]).all(-1).any()
 
 
 def test_no_obstacles_and_straight_only_configs():
