@@ -7,13 +7,13 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 ARGS ?=
 
-.PHONY: setup train test lint format bench scenes play clean
+.PHONY: setup train test lint format bench scenes play docs clean
 
 $(STAMP): pyproject.toml
 	test -d $(VENV) || $(PY) -m venv $(VENV)
 	$(BIN)/pip install --upgrade pip
 	$(BIN)/pip install torch==2.13.0
-	$(BIN)/pip install -e ".[dev]"
+	$(BIN)/pip install -e ".[dev,docs]"
 	touch $(STAMP)
 
 setup: $(STAMP)
@@ -42,5 +42,14 @@ play: $(STAMP)
 scenes: $(STAMP)
 	$(BIN)/truckrl tools scenes $(ARGS)
 
+# The documentation site: the generated fragments (docs/render.py, where it exists), then HTML
+# into docs/_build/html with every warning an error (-W; -n: unresolved references too). A broken
+# internal link (a missing page, heading anchor or file) is one of those warnings; external
+# links are never fetched, so the build works offline.
+DOCS_OPTS ?= -W --keep-going -n -q
+docs: $(STAMP)
+	if test -f docs/render.py; then $(BIN)/python docs/render.py; fi
+	$(BIN)/python -m sphinx -b html -d docs/_build/doctrees $(DOCS_OPTS) docs docs/_build/html
+
 clean:
-	rm -rf $(VENV) .pytest_cache .ruff_cache
+	rm -rf $(VENV) .pytest_cache .ruff_cache docs/_build docs/_generated

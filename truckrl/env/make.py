@@ -1,5 +1,5 @@
 """``make_env``: a :class:`~truckrl.env.truck_env.TruckEnv` of a named task in one call, with config
-overrides written as dotted keys, the way the command line writes them.
+overrides written as dotted keys, the way the command line writes them::
 
     env = make_env("dock", num_envs=64, **{"lidar.num_beams": 32})
     env = make_env(difficulty=6, control={"longitudinal": "speed"})
