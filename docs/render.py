@@ -44,12 +44,24 @@ OUT = DOCS / "_generated"
 
 #: Written to ``seeds.md`` while ``data/seeds/`` holds no aggregate: the command that makes one.
 NO_SEEDS = (
-    "No aggregate over seeds is committed yet. `truckrl tools aggregate RUN_DIRS... "
+    "No aggregate over seeds is committed yet. `truckrl tools aggregate runs=[RUN_DIR,...] "
     "out=docs/data/seeds/NAME.json` writes one from the run dirs of one config trained on "
     "several seeds; `python docs/render.py` then shows it here.\n"
 )
-#: Units whose values are fractions in [0, 1], shown as percentages.
+#: Units whose values are fractions in [0, 1], shown as percentages (and any unit that starts
+#: with "fraction", such as ``tools aggregate``'s "fraction of held-out scenes").
 FRACTION_UNITS = {"fraction", "rate", "1", ""}
+
+
+def is_fraction(unit: str) -> bool:
+    """Whether values in ``unit`` are fractions in [0, 1]."""
+    return unit in FRACTION_UNITS or unit.startswith("fraction")
+
+
+def unit_name(unit: str) -> str:
+    """A unit without its explanation in brackets: ``"min (wall clock ...)"`` -> ``"min"``."""
+    return unit.split(" (")[0].strip()
+
 
 Table = tuple[list[str], list[list[str]]]
 
@@ -72,7 +84,7 @@ def num(x: float | None) -> str:
 
 def value(x: float | None, unit: str) -> str:
     """``x`` in ``unit``: a fraction as a percentage, a percentage as given, else :func:`num`."""
-    if unit in FRACTION_UNITS:
+    if is_fraction(unit):
         return pct(x)
     if unit == "%":
         return "–" if x is None else f"{x:.1f} %"
@@ -228,7 +240,7 @@ def seeds_tables(doc: dict[str, Any]) -> dict[str, Table]:
     rows = []
     for name, m in metrics.items():
         unit = m.get("unit", "")
-        shown = name if unit in FRACTION_UNITS or unit == "%" else f"{name} [{unit}]"
+        shown = name if is_fraction(unit) or unit == "%" else f"{name} [{unit_name(unit)}]"
         rows.append(row(shown, m, unit))
     tables = {"": (header, rows)}
     if doc.get("bins"):

@@ -51,12 +51,13 @@ def test_seeds_aggregate_table_and_provenance(out):
         "|---|---:|---:|---:|---:|\n"
         "| heldout_success | 97.4 % | [97.0 %, 98.1 %] | 0: 97.1 %, 1: 97.4 %, 2: 98.1 % | 3 |\n"
         "| minutes_to_difficulty_6 [min] | 15.8 | [9.3, 16.5] | 0: 15.8, 1: 16.5, 2: 9.3 | 3 |\n"
-        "| frames_to_difficulty_6 [frames] | 30,100,000 | [12,700,000, 35,000,000] "
-        "| 0: 30,100,000, 1: 35,000,000, 2: 12,700,000 | 3 |\n"
+        "| frames_to_difficulty_6 [frames] | – | [–, –] "
+        "| 0: 30,100,000, 1: –, 2: 12,700,000 | 3 |\n"
         "\n"
-        "*Provenance:* `truckrl tools aggregate outputs/seeds/seed-0 outputs/seeds/seed-1 "
-        "outputs/seeds/seed-2 out=docs/data/seeds/demos.json` · machine: 2-core x86-64 VM · "
-        "torch threads: 2 · commit `0123456789` · date: 2030-01-02\n"
+        "*Provenance:* `truckrl tools aggregate 'runs=[outputs/seeds/seed-0,outputs/seeds/seed-1,"
+        "outputs/seeds/seed-2]' out=docs/data/seeds/demos.json` · machine: Linux 6.18, x86_64, "
+        "2 CPUs, Python 3.11.7, torch 2.13.0+cpu · torch threads: 2 · commit `0123456789-dirty` · "
+        "date: 2030-01-02 10:00:00 +0000\n"
     )
 
 
@@ -79,7 +80,7 @@ def test_no_aggregate_names_the_command(render, tmp_path):
     render.render(data, tmp_path / "out")
     text = (tmp_path / "out" / "seeds.md").read_text()
     assert "No aggregate over seeds is committed yet" in text
-    assert "`truckrl tools aggregate RUN_DIRS... out=docs/data/seeds/NAME.json`" in text
+    assert "`truckrl tools aggregate runs=[RUN_DIR,...] out=docs/data/seeds/NAME.json`" in text
 
 
 def test_evaluation_summary_bins_and_reconstructed_provenance(out):
