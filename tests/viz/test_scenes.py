@@ -1,20 +1,79 @@
-"""The scene-grid tool: it writes a PNG of the requested grid size, for any task."""
+"""The scene-grid tool: a PNG of the requested grid, each tile showing its scene with the truck
+where its start pose puts it, for any task."""
+
+import math
 
 import cv2
+import numpy as np
 import pytest
+import torch
 
-from truckrl.tasks import task_names
+from truckrl.config.fields import build
+from truckrl.tasks import EnvConfig, make_task, task_names
 from truckrl.tools.scenes import main
+
+TILE, BORDER, HALF_EXTENT = 128, 4, 50.0  # tile side [px], the tool's border [px], view [m]
+
+
+def _tractor_like(rgb):
+    """Pixels ``[..., 3]`` in the tractor's blues (outline (70, 140, 255), fill (38, 77, 140)),
+    or half blended with the dark background: blue well above red and green."""
+    r, g, b = (rgb[..., i].astype(int) for i in range(3))
+    return (b - r > 40) & (b - g > 25)
+
+
+def _trailer_like(rgb):
+    """Pixels in the trailer's teals (outline (70, 200, 185), fill (38, 110, 100)): green and
+    blue alike, both well above red (the goal's green has blue = red)."""
+    r, g, b = (rgb[..., i].astype(int) for i in range(3))
+    return (g - r > 40) & (b - r > 40) & (abs(g - b) < 30)
 
 
 @pytest.mark.parametrize("task", task_names())
-def test_tool_writes_png_of_each_task(task, tmp_path, capsys):
+def test_tool_draws_each_task_with_the_truck_at_its_start_pose(task, tmp_path, capsys):
     out = tmp_path / "grid.png"
-    args = ["count=3", "seed=1", "cols=2", "tile=64", f"out={out}", f"task={task}"]
+    args = ["count=3", "seed=1", "cols=2", f"tile={TILE}", f"half_extent={HALF_EXTENT}"]
+    args += [f"out={out}", f"task={task}"]
     assert main(args) == 0
-    img = cv2.imread(str(out))
-    assert img.shape == (2 * 68 + 4, 2 * 68 + 4, 3)  # 2 x 2 tiles of 64 px, 4 px borders
     assert f"of task {task}" in capsys.readouterr().out
+    img = cv2.imread(str(out))[..., ::-1]  # BGR -> RGB
+    side = 2 * (TILE + BORDER) + BORDER  # 2 x 2 tiles with borders
+    assert img.shape == (side, side, 3)
+    assert (img[-BORDER - TILE :, -BORDER - TILE :] == 255).all()  # the 4th tile stays blank
+    # the same scenes the tool draws: the task's own, seed 1
+    cfg = build(EnvConfig, {"task": {"name": task}}, "env")
+    state = make_task(cfg).sample(3, torch.Generator().manual_seed(1), torch.device("cpu"))
+    pose, goal, p = state["pose"].double(), state["goal"].double(), state["params"]
+    m_per_px = 2 * HALF_EXTENT / TILE
+    for i in range(3):
+        r, c = divmod(i, 2)
+        y0, x0 = BORDER + r * (TILE + BORDER), BORDER + c * (TILE + BORDER)
+        tile = img[y0 : y0 + TILE, x0 : x0 + TILE]
+        assert len(np.unique(tile.reshape(-1, 3), axis=0)) > 20  # not a blank or uniform tile
+        # scene segments, under the two text lines: curbs light grey (225, 225, 225), obstacle
+        # edges orange (235, 145, 45), each where the scene has valid segments of that kind
+        below_hud = tile[48:].astype(int)
+        curb = (below_hud.min(-1) > 150) & (np.ptp(below_hud, -1) < 20)
+        edge = (abs(below_hud - (235, 145, 45)).max(-1) < 30).sum()
+        valid = state["mask"][i]
+        kinds = {int(k) for k in state["kind"][i][valid]}
+        assert kinds and (0 not in kinds or curb.sum() > 20) and (1 not in kinds or edge > 20)
+        assert _trailer_like(tile).sum() > 3
+        # the tractor's centre: the rear axle plus half of (wheelbase + front overhang - rear
+        # overhang) along the heading; the tile is centred between start and goal, y up
+        ahead = 0.5 * (p["wheelbase"][i] + p["front_overhang"][i] - p["rear_overhang"][i])
+        x, y, th = pose[i, 0], pose[i, 1], pose[i, 2]
+        wx, wy = x + ahead * math.cos(th), y + ahead * math.sin(th)
+        cx, cy = 0.5 * (x + goal[i, 0]), 0.5 * (y + goal[i, 1])
+        col = (TILE - 1) / 2 + (wx - cx) / m_per_px
+        row = (TILE - 1) / 2 - (wy - cy) / m_per_px
+        rows, cols = np.nonzero(_tractor_like(tile))
+        assert len(rows) > 20, "no tractor drawn"
+        assert math.hypot(rows.mean() - float(row), cols.mean() - float(col)) < 2.0
+        # every tractor pixel within half its diagonal (+ 3 px: the 2 px outline, blended)
+        reach = math.hypot(ahead + p["rear_overhang"][i], p["tractor_width"][i] / 2)
+        dist = np.hypot(rows - float(row), cols - float(col))
+        assert dist.max() <= float(reach) / m_per_px + 3.0, (i, dist.max())
 
 
 @pytest.mark.parametrize(
