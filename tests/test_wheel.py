@@ -1,5 +1,7 @@
 """The built wheel works outside the source tree: ``pip install truckrl-*.whl`` into a fresh venv,
-then the entry points find their Hydra configs (shipped as package data) from another directory.
+then the entry points find their Hydra configs (shipped as package data) from another directory,
+the README's Python example runs against the installed copy, and the wheel carries the license
+(in its ``.dist-info``) and the ``py.typed`` marker.
 
 Marked ``wheel`` (minutes: it installs torch and every dependency into a new venv); not in the
 default selection, ``make test`` runs it after the default suite (``pytest -m wheel``).
@@ -17,7 +19,9 @@ from pathlib import Path
 
 import pytest
 
+import truckrl
 from tests.conftest import ROOT
+from tests.test_readme import README, python_example
 
 pytestmark = pytest.mark.wheel
 
@@ -47,6 +51,9 @@ def test_wheel_installs_in_a_fresh_venv_and_runs_from_elsewhere(tmp_path):
     for name in ("train", "evaluate", "play", "export", "control/accel_rate", "experiment/fast"):
         assert f"truckrl/conf/{name}.yaml" in names, name
     assert "truckrl/tasks/intersection/pretrained.pt" in names  # checkpoint=pretrained
+    assert "truckrl/py.typed" in names  # PEP 561: the package's annotations are for type checkers
+    licenses = [n for n in names if ".dist-info/" in n and n.rsplit("/", 1)[-1] == "LICENSE"]
+    assert licenses, "no LICENSE in the wheel's .dist-info"
     for name in ("dock/conf/experiment/dock", "intersection/conf/train_scenes/demos_intersection"):
         assert f"truckrl/tasks/{name}.yaml" in names, name  # the task folders' presets
     times["build"] = time.monotonic() - t0
@@ -67,6 +74,15 @@ def test_wheel_installs_in_a_fresh_venv_and_runs_from_elsewhere(tmp_path):
     location, torch_version = where.stdout.split()
     assert Path(location).is_relative_to(tmp_path / "venv"), location  # the installed copy
     assert torch_version.startswith("2.13.0"), torch_version  # not replaced by another build
+    installed = run(
+        [py, "-c", "import importlib.metadata as m; print(m.version('truckrl'))"], elsewhere
+    )
+    assert installed.stdout.strip() == truckrl.__version__  # the metadata reads __version__
+    example = python_example(README.read_text())
+    assert example is not None, (
+        f"{README} has no ```python block: the README's Python example is missing"
+    )
+    run([py, "-c", example], elsewhere)  # the README's Python example, on the installed copy
     job = run([py, "-m", "truckrl.train", "--cfg", "job"], elsewhere)
     assert "collector:" in job.stdout and "num_envs: 1024" in job.stdout  # experiment=fast
     helped = run([py, "-m", "truckrl.evaluate", "--help"], elsewhere).stdout  # the help template
