@@ -55,10 +55,14 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     a checkpoint.
     """
     # Heavy imports here, not at module level: `--help` and config errors answer before they load
+    import torch
+
     from truckrl.cli import git_revision, seed_everything
     from truckrl.rl.session import StopSignals
     from truckrl.rl.trainer import Trainer
 
+    if tc.threads is not None:  # before any torch work: a reduction's order depends on it
+        torch.set_num_threads(tc.threads)
     stop = stop or StopSignals()
     source = git_revision()  # once: checkpoints record the commit the session started from
     trainer = Trainer(tc, run_dir, state, parent, stop, init, source)

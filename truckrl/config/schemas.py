@@ -69,7 +69,17 @@ class LogConfig:
         lo=0.0,
         hi=1e7,
         unit="min",
-        doc="wall clock between held-out evaluations (truckrl/evaluation/heldout.py; 0: never)",
+        doc="wall clock between held-out evaluations (truckrl/evaluation/heldout.py; 0: never; "
+        "unused when eval_interval_frames is set)",
+    )
+    eval_interval_frames: int | None = param(
+        None,
+        lo=1,
+        hi=1e15,
+        unit="frames",
+        doc="training frames between held-out evaluations (at the first iteration that ends "
+        "past each multiple); when set it replaces eval_interval_min, so which checkpoint "
+        "becomes best.pt does not depend on the machine's speed (null: eval_interval_min)",
     )
     eval_episodes: int = param(
         200, lo=1, hi=1_000_000, unit="episodes", doc="held-out scenes per evaluation"
@@ -100,6 +110,7 @@ RESUME_OVERRIDES = (
     "resume",
     "overwrite",
     "device",
+    "threads",
     "log",
     "checkpoint",
 )
@@ -179,6 +190,13 @@ class TrainConfig:
 
     seed: int = param(0, lo=0, hi=SEED_MAX, doc="torch/numpy/python seed; env seeds derive from it")
     device: str = param("cpu", doc="env and policy device: cpu | cuda")
+    threads: int | None = param(
+        None,
+        lo=1,
+        hi=1024,
+        doc="torch CPU threads of the training process (torch.set_num_threads, set before "
+        "anything runs; the same seed and threads give the same run; null: torch's default)",
+    )
     total_frames: int | None = param(
         None, lo=1, hi=1e15, unit="frames", doc="stop after this many frames (all sessions)"
     )

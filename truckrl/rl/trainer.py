@@ -253,22 +253,27 @@ class Trainer:
         self.progress.update(counters.frames, self.minutes, cur.difficulty, cur.ema,
                              timing["perf/fps"])  # fmt: skip
         t_log = self._span(timings, "log_s", t2)
-        self._periodic(t0)
+        self._periodic(t0, frames)
         self._span(timings, "periodic_s", t_log)
         return {"frames": float(frames), "promoted": float(promoted), **timing, **learn}
 
-    def _periodic(self, t0: float) -> None:
-        """What is due after the iteration begun at ``t0``: a video, a held-out check (and
-        best.pt when it beats every earlier one), last.pt."""
+    def _periodic(self, t0: float, frames: int) -> None:
+        """What is due after the iteration begun at ``t0`` that collected ``frames`` frames: a
+        video, a held-out check (and best.pt when it beats every earlier one), last.pt."""
         tc, cur, counters = self.tc, self.curriculum, self.counters
         if self.video_ok and self.logger.video_due(counters.iteration, tc.log.video_interval):
             self.video_ok = self.logger.rollout_video(
                 self.ac.actor, tc.env, cur.difficulty, tc.seed, tc.log.video_steps, tc.device,
                 counters.iteration, counters.frames, tc.log.video_fps,
             )  # fmt: skip
-        # Held-out scenes every log.eval_interval_min minutes (truckrl/evaluation/heldout.py)
-        elapsed, window = time.monotonic() - self.session_start, time.perf_counter() - t0
-        if heldout_due(tc.log.eval_interval_min, elapsed, window):
+        # Held-out scenes every log.eval_interval_frames frames, else every log.eval_interval_min
+        # minutes (truckrl/evaluation/heldout.py)
+        if tc.log.eval_interval_frames is not None:
+            due = frames_due(tc.log.eval_interval_frames, counters.frames, frames)
+        else:
+            elapsed, window = time.monotonic() - self.session_start, time.perf_counter() - t0
+            due = heldout_due(tc.log.eval_interval_min, elapsed, window)
+        if due:
             evals = heldout_scalars(
                 self.ac.actor, tc.env, cur.difficulty, tc.log.eval_episodes, tc.device
             )
@@ -332,6 +337,17 @@ class Trainer:
         """The last lines of the session: why it stopped, where its checkpoint is, what next."""
         return stop_lines(reason, self.run_dir, self.counters.iteration, self.counters.frames,
                           self.minutes, self.curriculum.difficulty)  # fmt: skip
+
+
+def frames_due(interval: int, frames: int, window: int) -> bool:
+    """Whether a multiple of ``interval`` frames was passed by the last ``window`` frames, with
+    ``frames`` the run's total (all sessions) after them.
+
+    Called once per iteration with ``window`` = the iteration's frames, it is true at the first
+    iteration that ends at or past each multiple, with no state to keep; a resumed run keeps the
+    schedule, since ``frames`` counts every session.
+    """
+    return frames // interval > max(frames - window, 0) // interval
 
 
 def bc_weight(dc: Any, frames: int) -> float:
