@@ -10,26 +10,25 @@ change of one gradient moves parameters by ~1e-5 relative). A change that is mea
 outputs re-records them (``python -m tests.golden.golden``) and says why in its commit message.
 """
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests.golden.golden import PINNED_ENV, PPO_FILE, ROLLOUT_FILE, TASK_ROLLOUT_FILES, load_golden
-
-ROOT = Path(__file__).resolve().parent.parent
+from tests.golden.golden import (
+    PPO_FILE,
+    ROLLOUT_FILE,
+    TASK_ROLLOUT_FILES,
+    load_golden,
+    record_pinned,
+)
 
 
 @pytest.fixture(scope="module")
 def fresh(tmp_path_factory) -> Path:
     """A folder with every recording made afresh by the code under test."""
     out = tmp_path_factory.mktemp("golden")
-    env = {**os.environ, **PINNED_ENV}
-    cmd = [sys.executable, "-m", "tests.golden.golden", "--out", str(out)]
-    subprocess.run(cmd, cwd=ROOT, env=env, check=True, capture_output=True, timeout=600)
+    record_pinned(out)
     return out
 
 

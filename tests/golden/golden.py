@@ -15,12 +15,17 @@ alter outputs, and say why in the commit message; a refactor must leave them unt
   ``TruckEnv(num_envs=16, seed=0)`` with ``task.name`` set, 100 steps (:func:`golden_task_rollout`).
 * ``ppo.npz``: one PPO update (2 epochs x 4 minibatches) on a 16-truck x 32-step rollout of the
   paper's network under ``torch.manual_seed(0)``: the loss metrics and every parameter after it.
+* ``outcomes_<task>.npz`` (``--outcomes [TASK ...]``, not part of the default set): how each of
+  the 100 held-out episodes of a shipped policy ends, as ``truckrl eval
+  checkpoint=pretrained:<task> difficulty=<claimed> episodes=100 seed=12345`` plays them
+  (:func:`golden_outcomes`; checked by ``tests/rl/test_pretrained.py``).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -34,6 +39,13 @@ PPO_FILE = HERE / "ppo.npz"
 PINNED_ENV = {"ATEN_CPU_CAPABILITY": "default", "MKL_CBWR": "COMPATIBLE", "OMP_NUM_THREADS": "1"}
 #: Reversing tasks pinned by their own recordings (N = 16, 100 steps).
 TASK_ROLLOUT_FILES = {name: HERE / f"rollout_{name}.npz" for name in ("dock", "uturn")}
+#: Shipped policies and the difficulty their model card's success rate is claimed at
+#: (``truckrl/tasks/<task>/pretrained.md``).
+CLAIMED_DIFFICULTY = {"intersection": 6.0, "dock": 7.0, "uturn": 4.0}
+#: Per-episode outcomes of each shipped policy (:func:`golden_outcomes`).
+OUTCOME_FILES = {task: HERE / f"outcomes_{task}.npz" for task in CLAIMED_DIFFICULTY}
+#: Held-out scenes of the outcome recordings: ``truckrl eval``'s default seed, 100 episodes.
+OUTCOME_SEED, OUTCOME_EPISODES = 12345, 100
 
 
 def _flat(td) -> dict[str, np.ndarray]:
@@ -140,16 +152,56 @@ def golden_ppo() -> dict[str, np.ndarray]:
     return out
 
 
-def record(out: Path) -> list[Path]:
-    """Write every recording into ``out``; returns the files written."""
+def golden_outcomes(task: str) -> dict[str, np.ndarray]:
+    """How each held-out episode of the shipped ``task`` policy ends, played as ``truckrl eval``
+    plays them (:func:`~truckrl.evaluation.rollout.evaluate_policy`: the mean action, one batch
+    of :data:`OUTCOME_EPISODES` scenes of :data:`OUTCOME_SEED`) at its claimed difficulty.
+
+    Returns:
+        "outcome" ``[E]`` int8: bit ``i`` set when outcome ``OUTCOMES[i]``'s flag is set at the
+        episode's end (1 success, 2 collision, 4 jackknife, 8 timeout); "tolerance" ``[2]``
+        float64 (position [m], heading [deg]); "difficulty" [] float64.
+    """
+    from truckrl.evaluation.rollout import evaluate_policy
+    from truckrl.rl.policy import load_policy
+    from truckrl.tasks import OUTCOMES
+
+    policy = load_policy(f"pretrained:{task}")
+    difficulty = CLAIMED_DIFFICULTY[task]
+    results, tolerance, _ = evaluate_policy(
+        policy.actor, policy.env_config, difficulty, OUTCOME_EPISODES, OUTCOME_SEED
+    )
+    outcome = sum(results[o.flag].to(torch.int8) << i for i, o in enumerate(OUTCOMES))
+    return {
+        "outcome": outcome.numpy().astype(np.int8),
+        "tolerance": np.asarray(tolerance, dtype=np.float64),
+        "difficulty": np.asarray(difficulty, dtype=np.float64),
+    }
+
+
+def record(out: Path, outcomes: list[str] | None = None) -> list[Path]:
+    """Write every recording into ``out``, or with ``outcomes`` only those tasks'
+    ``outcomes_<task>.npz``; returns the files written."""
     torch.set_num_threads(1)
     out.mkdir(parents=True, exist_ok=True)
-    files = {out / ROLLOUT_FILE.name: pack(golden_rollout()), out / PPO_FILE.name: golden_ppo()}
-    for name, path in TASK_ROLLOUT_FILES.items():
-        files[out / path.name] = pack(golden_task_rollout(name))
+    if outcomes is not None:
+        files = {out / OUTCOME_FILES[t].name: golden_outcomes(t) for t in outcomes}
+    else:
+        files = {out / ROLLOUT_FILE.name: pack(golden_rollout()), out / PPO_FILE.name: golden_ppo()}
+        for name, path in TASK_ROLLOUT_FILES.items():
+            files[out / path.name] = pack(golden_task_rollout(name))
     for path, data in files.items():
         np.savez_compressed(path, **data)
     return list(files)
+
+
+def record_pinned(out: Path, *args: str, timeout: float = 600) -> subprocess.CompletedProcess:
+    """``python -m tests.golden.golden --out out args...`` in a subprocess under
+    :data:`PINNED_ENV` (set before torch is imported, as it must be); raises on failure."""
+    root = HERE.parent.parent
+    cmd = [sys.executable, "-m", "tests.golden.golden", "--out", str(out), *args]
+    env = {**os.environ, **PINNED_ENV}
+    return subprocess.run(cmd, cwd=root, env=env, check=True, capture_output=True, timeout=timeout)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -157,12 +209,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--out", type=Path, default=HERE, help="folder to write (default: tests/golden)"
     )
+    ap.add_argument(
+        "--outcomes",
+        nargs="*",
+        choices=sorted(OUTCOME_FILES),
+        metavar="TASK",
+        help="record only the shipped policies' outcomes_<TASK>.npz (no TASK: all of them)",
+    )
     args = ap.parse_args(argv)
     if any(os.environ.get(k) != v for k, v in PINNED_ENV.items()):  # torch reads them at import
         env = {**os.environ, **PINNED_ENV}
-        cmd = [sys.executable, "-m", "tests.golden.golden", "--out", str(args.out)]
+        cmd = [
+            sys.executable,
+            "-m",
+            "tests.golden.golden",
+            *(sys.argv[1:] if argv is None else argv),
+        ]
         os.execve(sys.executable, cmd, env)
-    for path in record(args.out):
+    outcomes = None if args.outcomes is None else (args.outcomes or sorted(OUTCOME_FILES))
+    for path in record(args.out, outcomes):
         print(f"wrote {path} ({path.stat().st_size:,} B)")
     return 0
 
