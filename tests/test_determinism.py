@@ -1,0 +1,127 @@
+"""Same seed, same threads, same result: two ``truckrl train seed=S threads=T`` runs write the
+same checkpoints bit for bit and log the same scalars, and resuming the same checkpoint twice
+does too.
+
+What a run draws from is seeded from ``seed`` alone: the global generators
+(``truckrl.cli.seed_everything``: network init, action noise, minibatch order), the training
+envs (:func:`truckrl.rl.collection.env_seed`), the held-out scenes (a fixed seed) and, on
+resume, the generator states saved in the checkpoint. What is not: the wall clock, which decides
+when ``log.eval_interval_min`` runs a held-out check (and so which checkpoint becomes best.pt;
+``log.eval_interval_frames`` counts frames instead, as these runs do) and the ``perf/*``
+scalars (:data:`WALL_CLOCK`); and the float rounding of a reduction, which depends on the
+thread count (``threads``: a config value, so the same config reruns the same arithmetic).
+
+Runs are tiny and eager, in subprocesses (each with fresh global state, as users run them).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from tests.conftest import TINY_BATCH, TINY_TRAIN, run_cli
+from truckrl.rl.checkpoint import load_checkpoint
+
+pytestmark = pytest.mark.e2e
+
+#: Logged scalars that measure the wall clock (frames/s and seconds), left out of the comparison.
+WALL_CLOCK = frozenset({"perf/fps", "perf/fps_collect", "perf/collect_s", "perf/learn_s"})
+#: Checkpoint entries that differ between identical runs: the session's wall clock [s] and the
+#: path it was loaded from.
+UNSHARED = frozenset({("counters", "wall_time_s"), ("path",)})
+#: Three iterations with a held-out check after the second (best.pt) and a seed of its own.
+RUN = [*TINY_TRAIN, "seed=7", "threads=1", "checkpoint.interval=1"]
+RUN += [f"log.eval_interval_frames={2 * TINY_BATCH}", "log.eval_episodes=4", "env.max_steps=20"]
+
+
+def train(run_dir: Path, *args: str) -> None:
+    proc = run_cli("train", *RUN, *args, f"hydra.run.dir={run_dir}")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def leaves(x: Any, key: tuple = ()) -> dict[tuple, Any]:
+    """Every leaf of a nested checkpoint (dicts, lists, tensors) by its key path."""
+    if isinstance(x, dict):
+        return {k: v for name, item in x.items() for k, v in leaves(item, (*key, name)).items()}
+    if isinstance(x, list | tuple):
+        return {k: v for i, item in enumerate(x) for k, v in leaves(item, (*key, i)).items()}
+    return {key: x}
+
+
+def checkpoint_differences(a: Path, b: Path) -> list[str]:
+    """The leaves of two checkpoint files that differ (tensors bit for bit: dtype, shape and
+    bytes), but for :data:`UNSHARED`."""
+    la, lb = leaves(load_checkpoint(a)), leaves(load_checkpoint(b))
+    out = ["/".join(map(str, key)) for key in set(la) ^ set(lb)]  # in one of them only
+    for key, va in la.items():
+        if key in UNSHARED or key not in lb:
+            continue
+        vb = lb[key]
+        if isinstance(va, torch.Tensor):
+            same = (
+                isinstance(vb, torch.Tensor)
+                and va.dtype == vb.dtype
+                and va.shape == vb.shape
+                and va.numpy().tobytes() == vb.numpy().tobytes()
+            )
+        else:  # NaN (a metric with no episode yet) equals NaN here
+            same = va == vb or (isinstance(va, float) and va != va and vb != vb)
+        if not same:
+            out.append("/".join(map(str, key)))
+    return out
+
+
+def scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
+    """Every logged scalar but :data:`WALL_CLOCK`: ``{tag: [(frames, value), ...]}``."""
+    acc = EventAccumulator(str(run_dir / "tb"), size_guidance={"scalars": 0})
+    acc.Reload()
+    tags = sorted(set(acc.Tags()["scalars"]) - WALL_CLOCK)
+    return {t: [(e.step, e.value) for e in acc.Scalars(t)] for t in tags}
+
+
+def assert_same_run(a: Path, b: Path) -> None:
+    """Runs ``a`` and ``b`` wrote the same checkpoints (bit for bit) and scalars (exactly)."""
+    names = sorted(p.name for p in (a / "checkpoints").glob("*.pt"))
+    assert names == sorted(p.name for p in (b / "checkpoints").glob("*.pt"))
+    for name in names:
+        diff = checkpoint_differences(a / "checkpoints" / name, b / "checkpoints" / name)
+        assert not diff, f"{name} differs in {diff}"
+    sa, sb = scalars(a), scalars(b)
+    assert sorted(sa) == sorted(sb), set(sa) ^ set(sb)
+    diff = [tag for tag in sa if sa[tag] != sb[tag]]
+    assert not diff, f"logged scalars differ: {diff}"
+
+
+@pytest.fixture(scope="module")
+def twins(tmp_path_factory) -> tuple[Path, Path]:
+    """Two runs of the same command line (:data:`RUN`, three iterations) in two run dirs."""
+    a, b = tmp_path_factory.mktemp("a"), tmp_path_factory.mktemp("b")
+    for d in (a, b):
+        train(d, f"total_frames={3 * TINY_BATCH}")
+    return a, b
+
+
+def test_the_same_seed_and_threads_give_the_same_run(twins):
+    a, b = twins
+    assert load_checkpoint(a)["counters"]["iteration"] == 3
+    assert load_checkpoint(a / "checkpoints" / "best.pt")["heldout"]["frames"] == 2 * TINY_BATCH
+    assert "train/kl" in scalars(a) and "eval/success_rate" in scalars(a)
+    assert_same_run(a, b)
+    # the comparison sees a difference where there is one: iteration 3 against iteration 2
+    diff = checkpoint_differences(a / "checkpoints" / "last.pt", a / "checkpoints" / "best.pt")
+    assert "model/module.1.module.0.module.mean.weight" in diff and "counters/frames" in diff
+
+
+def test_resuming_the_same_checkpoint_twice_gives_the_same_run(twins, tmp_path):
+    """One twin's last.pt (iteration 3) continued twice for two iterations, each time into a new
+    run dir (a branch: ``resume=<file> hydra.run.dir=<new>``)."""
+    last = twins[0] / "checkpoints" / "last.pt"
+    c, d = tmp_path / "c", tmp_path / "d"
+    for run in (c, d):
+        train(run, f"resume={last}", f"total_frames={5 * TINY_BATCH}")
+    assert load_checkpoint(c)["counters"]["iteration"] == 5
+    assert_same_run(c, d)
