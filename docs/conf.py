@@ -51,7 +51,8 @@ myst_heading_anchors = 4
 # ------------------------------------------------------------------------------------- autodoc
 autodoc_default_options = {"members": True, "member-order": "bysource"}
 autodoc_typehints = "description"
-autodoc_class_signature = "separated"
+autodoc_typehints_description_target = "documented_params"  # types of what the docstring names
+autodoc_class_signature = "mixed"
 napoleon_google_docstring = True
 napoleon_numpy_docstring = False
 # Optional packages that the documented modules import lazily or not at all are not mocked:

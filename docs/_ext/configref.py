@@ -12,7 +12,8 @@ Usage (MyST)::
     ```{config-reference}
     ```
 
-Each section is a ``std`` label ``config-<group>`` with dots as hyphens (``config-env-vehicle``,
+Within a section the field names are shown relative to its prefix (``wheelbase`` in the section
+``env.vehicle``), so the tables fit the page. Each section is a ``std`` label ``config-<group>`` with dots as hyphens (``config-env-vehicle``,
 ``config-env-task-dock``), for ``{ref}`` links from other pages. With an argument, the directive
 is one table of the fields whose dotted name starts with it, for a narrative page (no sections,
 no labels); ``:task:`` picks the task whose ``env.task`` fields it reads (default: the default
@@ -119,7 +120,8 @@ def _inline(text: str) -> list[nodes.Node]:
     return out
 
 
-def _table(rows: list[Row]) -> nodes.table:
+def _table(rows: list[Row], prefix: str = "") -> nodes.table:
+    """The rows as a table; field names are shown without ``prefix`` (the section's)."""
     table = nodes.table(classes=["config-reference"])
     group = nodes.tgroup(cols=len(COLUMNS))
     table += group
@@ -129,7 +131,8 @@ def _table(rows: list[Row]) -> nodes.table:
     group += head
     body = nodes.tbody()
     group += body
-    for target, cells in [(head, COLUMNS), *((body, r) for r in rows)]:
+    shown = [(r[0].removeprefix(prefix), *r[1:]) for r in rows]
+    for target, cells in [(head, COLUMNS), *((body, r) for r in shown)]:
         line = nodes.row()
         for i, cell in enumerate(cells):
             entry = nodes.entry()
@@ -182,8 +185,11 @@ class ConfigReference(SphinxDirective):
         for group, title, rows in reference():
             node_id = label(group)
             section = nodes.section(ids=[node_id])
-            section += nodes.title(title, title)
-            section += _table(rows)
+            head = "env.task" if group.startswith("env.task:") else group
+            words = [nodes.literal(head, head), nodes.Text(title[len(head) :])] if head else []
+            section += nodes.title(title, "", *(words or [nodes.Text(title)]))
+            prefix = "env.task." if group.startswith("env.task:") else f"{group}." if group else ""
+            section += _table(rows, prefix)
             self.state.document.note_explicit_target(section)
             std.note_hyperlink_target(node_id, self.env.docname, node_id, title)
             out.append(section)

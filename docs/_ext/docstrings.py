@@ -17,8 +17,10 @@
    it; of several, to the one that shares the longest package prefix with the referring module
    (``INFO_KEYS`` in ``truckrl.tasks.uturn.task`` is ``truckrl.tasks.uturn.scene.INFO_KEYS``).
    A member that a class inherits (``DockTask.reverse``) resolves to the base class that
-   documents it (``Task.reverse``). A tie stays a warning and none stays a missing reference:
-   the nitpicky build fails on both.
+   documents it (``Task.reverse``). A name that the referring module imports from outside
+   truckrl (``Path`` in a signature) is shown as plain text: there is no offline inventory of
+   other projects to link to. A tie stays a warning and none stays a missing reference: the
+   nitpicky build fails on both.
 """
 
 from __future__ import annotations
@@ -108,6 +110,20 @@ def _inherited(domain: Any, module: str, target: str) -> str | None:
     return None
 
 
+def _external(module: str, target: str) -> bool:
+    """Whether ``target``'s first name, looked up in ``module``, is an object from outside
+    truckrl (a class, function or module of another package)."""
+    try:
+        namespace = importlib.import_module(module)
+    except (ImportError, ValueError):
+        return False
+    obj = getattr(namespace, target.split(".")[0], None)
+    if obj is None:
+        return False
+    origin = getattr(obj, "__module__", None) or getattr(obj, "__name__", None)
+    return isinstance(origin, str) and origin.split(".")[0] != "truckrl"
+
+
 def _resolve_relative(
     app: Sphinx, env: BuildEnvironment, node: nodes.Element, contnode: nodes.Element
 ) -> nodes.Element | None:
@@ -135,6 +151,8 @@ def _resolve_relative(
     if len(matches) > 1:
         best = max(_shared_prefix(module, name) for name, _ in matches)
         matches = [(n, o) for n, o in matches if _shared_prefix(module, n) == best]
+    if not matches and module and _external(module, target):
+        return contnode
     if len(matches) != 1:
         node["refspecific"] = True  # let the domain report the tie, or fall through as missing
         return domain.resolve_xref(

@@ -24,9 +24,9 @@ range onto ``[-1, 1]``:
 index  meaning                                              normalisation
 =====  ===================================================  ==============================
 0, 1   goal rear axle in the tractor frame (x fwd, y left)  / 50 m (paper)
-2, 3   sin, cos of (psi_g - theta)                          -
-4, 5   sin, cos of (psi_g - theta - phi)  (trailer)         -
-6, 7   sin, cos of phi                                      -
+2, 3   sin, cos of (psi_g - theta)                          none: in [-1, 1]
+4, 5   sin, cos of (psi_g - theta - phi)  (trailer)         none: in [-1, 1]
+6, 7   sin, cos of phi                                      none: in [-1, 1]
 8..13  speed, accel, jerk, steer, steer rate, steer accel   / their per-truck limit
 14     wheelbase L_t                                        range -> [-1, 1]
 15     kingpin offset a_tk                                  range -> [-1, 1]
