@@ -13,6 +13,7 @@ import pytest
 from tests.conftest import TINY_BATCH, TINY_TRAIN
 from truckrl import cli
 from truckrl.config.schemas import TrainConfig
+from truckrl.evaluation.categories import task_bins
 from truckrl.evaluation.rollout import evaluate_policy
 from truckrl.rl.checkpoint import load_checkpoint
 from truckrl.rl.policy import load_policy
@@ -55,6 +56,7 @@ def test_a_dirty_tree_is_refused_in_one_line_before_any_work(
     revision, says, monkeypatch, tmp_path, capsys
 ):
     monkeypatch.setattr(cli, "git_revision", lambda: revision)
+    monkeypatch.setattr(pretrained, "train_child", lambda *a: pytest.fail("it trained"))
     code = call("task=dock", f"out={tmp_path / 'p.pt'}", f"run_dir={tmp_path / 'run'}")
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1, err
@@ -66,6 +68,7 @@ def test_a_clean_tree_goes_on_to_check_the_training_config(monkeypatch, tmp_path
     """Past the source check the training overrides are composed before any training: a bad
     one is its own one-line error (so the clean tree was accepted)."""
     monkeypatch.setattr(cli, "git_revision", lambda: {"commit": "a" * 40, "dirty": False})
+    monkeypatch.setattr(pretrained, "train_child", lambda *a: pytest.fail("it trained"))
     code = call("task=dock", "train.ppo.lr=-1", f"run_dir={tmp_path / 'run'}")
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error: ppo.lr = -1"), err
@@ -152,6 +155,9 @@ def test_a_tiny_build_writes_the_policy_and_its_card(tmp_path, capsys):
         results, tolerance, _ = evaluate_policy(policy.actor, policy.env_config, 6.0, 6, seed)
         assert facts["heldout"][str(seed)]["success"] == results["success"].float().mean().item()
         bins = facts["heldout"][str(seed)]["bins"]
+        scenes = task_bins("intersection", results)  # the scenes of this seed, binned here
+        counts = {f"{d} {b}": int(m.sum()) for d, group in scenes.items() for b, m in group.items()}
+        assert {name: b["count"] for name, b in bins.items()} == counts
         assert sum(b["count"] for name, b in bins.items() if name.startswith("route ")) == 6
     assert facts["tolerance"] == pytest.approx([tolerance[0], tolerance[1]])
     card = out.with_suffix(".md").read_text()
