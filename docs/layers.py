@@ -26,6 +26,7 @@ ORDER = (
     "cli",
     "schemas",
     "viewer",
+    "api",
     "rl",
     "planning",
     "evaluation",

@@ -50,6 +50,7 @@ ALLOWED: dict[str, set[str]] = {
 ALLOWED["cli"] = set(ALLOWED) | {"viewer", "schemas"}
 ALLOWED["entry"] = ALLOWED["cli"] | {"cli"}
 ALLOWED["main"] = ALLOWED["entry"] | {"entry"}
+ALLOWED["api"] = ALLOWED["rl"] | {"rl"}
 
 #: Top-level modules and packages of the entry layer: the commands of ``truckrl``.
 ENTRY = {"train", "evaluate", "play", "export", "plan", "bench", "tools"}
@@ -66,7 +67,7 @@ def layer_of(module: str) -> str:
     """The layer of a dotted ``truckrl`` module (see the module docstring)."""
     parts = module.split(".")[1:]
     if not parts:
-        return "config"  # the package itself: ``__version__`` only
+        return "api"  # the package itself: __version__ and the public names it loads on use
     head = parts[0]
     if head == "config":
         return "schemas" if parts[1:2] == ["schemas"] else "config"
@@ -86,16 +87,22 @@ def layer_of(module: str) -> str:
 
 def truckrl_imports(path: Path) -> set[str]:
     """Dotted truckrl modules that ``path`` imports (``from truckrl.x import y`` -> both ``truckrl.x``
-    and, when it is a module, ``truckrl.x.y``)."""
+    and, when it is a module, ``truckrl.x.y``; ``from truckrl import cli`` -> ``truckrl.cli``)."""
     tree = ast.parse(path.read_text())
     names = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("truckrl"):
-            names.add(node.module)
+            subs = set()
             for a in node.names:
                 sub = PKG.parent / Path(*f"{node.module}.{a.name}".split("."))
                 if sub.with_suffix(".py").is_file() or sub.is_dir():
-                    names.add(f"{node.module}.{a.name}")
+                    subs.add(f"{node.module}.{a.name}")
+            names |= subs
+            # ``from truckrl import cli`` reaches only the submodule: the package's own names
+            # (the public API) load on first use, so the package counts only where a name is
+            # taken from it
+            if node.module != "truckrl" or len(subs) < len(node.names):
+                names.add(node.module)
         elif isinstance(node, ast.Import):
             names |= {a.name for a in node.names if a.name.startswith("truckrl")}
     return names
