@@ -18,7 +18,7 @@ from truckrl.evaluation.rollout import evaluate_policy
 from truckrl.rl.checkpoint import TASKS_DIR, load_checkpoint, save_checkpoint
 from truckrl.rl.logger import RunLogger
 from truckrl.rl.policy import load_policy
-from truckrl.tools.aggregate import main
+from truckrl.tools.aggregate import _on_grid, main
 from truckrl.tools.stats import bootstrap_ci, iqm, iqm_weights, percentile, summary
 
 
@@ -68,6 +68,16 @@ def test_summary_treats_never_as_infinite_or_leaves_it_out():
     assert out["ci95"] is None  # resamples with two or more never: an infinite upper end
     assert summary([0.5, None]) == {"iqm": 0.5, "ci95": [0.5, 0.5]}
     assert summary([None]) == {"iqm": None, "ci95": None}
+
+
+def test_a_curve_on_the_plot_grid_holds_each_value_until_the_next():
+    """(minutes, frames, value) rows on a frames grid: NaN before the first row and after the
+    last, else the value of the latest row at or before the grid point."""
+    series = np.array([[0.5, 1000.0, 0.0], [2.0, 3000.0, 6.0]])
+    grid = np.array([500.0, 1000.0, 2000.0, 3000.0, 4000.0])
+    y = _on_grid(series, grid, column=1)
+    assert np.isnan(y[0]) and np.isnan(y[4]) and list(y[1:4]) == [0.0, 0.0, 6.0]
+    assert list(_on_grid(series, np.array([1.0, 2.0]), column=0)) == [0.0, 6.0]
 
 
 # ------------------------------------------------------------------------------- synthetic runs

@@ -23,8 +23,8 @@ Across seeds: the IQM and a 95 % percentile bootstrap interval of each (a seed t
 reached difficulty 6 counts as never: the IQM and interval are null where that seed weighs in).
 It prints a per-seed table and the IQM table, and writes ``out`` (JSON, :func:`result`);
 ``plot=FILE.png`` draws the curriculum difficulty and success EMA of every seed against frames
-(or minutes, ``x=minutes``) as the median with the interquartile band. Bad input prints one line
-and exits with code 2 before any evaluation.
+(or minutes, ``x=minutes``) as the median with the interquartile band, up to where the shortest
+run ends. Bad input prints one line and exits with code 2 before any evaluation.
 """
 
 from __future__ import annotations
@@ -307,7 +307,7 @@ def _cell(value: float | None, name: str) -> str:
     if name == "heldout_success" or "success" in name:
         return f"{100.0 * value:.1f} %"
     if name.startswith("frames"):
-        return f"{value / 1e6:.2f} M"
+        return f"{value / 1e6:.2f} M" if value >= 1e6 else f"{value:,.0f}"
     return f"{value:.1f}" if name.startswith("minutes") else f"{value:g}"
 
 
@@ -344,8 +344,8 @@ def _on_grid(series: Any, grid: Any, column: int) -> Any:
 
 
 def render_seeds(runs: list[Run], x: str, width: int = 900, panel_h: int = 240) -> Any:
-    """:data:`CURVES` over the seeds, median line and interquartile band, stacked:
-    ``[len(CURVES) * panel_h, width, 3]`` uint8 RGB."""
+    """:data:`CURVES` over the seeds, median line and interquartile band, up to where the
+    shortest run ends, stacked: ``[len(CURVES) * panel_h, width, 3]`` uint8 RGB."""
     import cv2
     import numpy as np
 
@@ -361,7 +361,7 @@ def render_seeds(runs: list[Run], x: str, width: int = 900, panel_h: int = 240) 
             for r in runs
             if tag in r.scalars and len(r.scalars[tag])
         ]
-        x_max = max((float(s[-1, column]) for s in series), default=1.0) or 1.0
+        x_max = min((float(s[-1, column]) for s in series), default=1.0) or 1.0  # all seeds
         grid = np.linspace(0.0, x_max, 300)
         ys = np.stack([_on_grid(s, grid, column) for s in series]) if series else None
         y_hi = hi if hi is not None else max(1.0, float(np.nanmax(ys)) if ys is not None else 1.0)
