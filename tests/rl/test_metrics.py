@@ -6,6 +6,7 @@ from tensordict import TensorDict
 
 from truckrl.env import TruckEnv
 from truckrl.rl.metrics import EpisodeTracker, episode_sums, finished_in_time_order
+from truckrl.tasks import EnvConfig
 from truckrl.tasks.intersection.task import IntersectionTask
 
 REWARD_TERMS = IntersectionTask.reward_keys
@@ -84,11 +85,21 @@ def test_tracker_statistics_by_hand():
 
 
 def test_real_env_episode_end_values_belong_to_the_finished_episode():
-    env = TruckEnv(num_envs=64, seed=0)
-    td = env.rollout(6, break_when_any_done=False)
+    # 4-step episodes: goals within 30 m end in one step, the others time out after 4
+    env = TruckEnv(num_envs=64, seed=0, config=EnvConfig(max_steps=4))
+    td = env.rollout(10, break_when_any_done=False)
     nxt = td["next"]
     done = nxt["done"].squeeze(-1)
     ok = nxt["success"].squeeze(-1)
     assert ok.any()
     assert (nxt["pos_error"].squeeze(-1)[ok] <= 30.0).all()  # success is within 30 m (difficulty 0)
-    assert (nxt["step_count"].squeeze(-1)[done] >= 1).all()
+    # at every done the step count is the finished episode's length: the steps since the
+    # previous done of that env (or since the rollout's start), counted here
+    length = torch.zeros(done.shape, dtype=torch.long)
+    since = torch.zeros(done.shape[0], dtype=torch.long)
+    for t in range(done.shape[1]):
+        since += 1
+        length[:, t] = since
+        since[done[:, t]] = 0
+    assert torch.equal(nxt["step_count"].squeeze(-1)[done], length[done])
+    assert (length[done] == 1).any() and (length[done] == 4).any()  # both kinds of episode
