@@ -82,6 +82,7 @@ def test_a_clean_tree_goes_on_to_check_the_training_config(monkeypatch, tmp_path
         (["task=parking"], "error: task = 'parking' is not one of"),
         (["task=dock", "out=x.onnx"], "error: out = 'x.onnx': a .pt file to write"),
         (["task=dock", "episodes=0"], "error: episodes = 0 is outside"),
+        (["task=dock", "train.threads=3"], "error: train.threads: give threads=N"),
     ],
 )
 def test_bad_input_is_one_line(args, says, capsys):
@@ -165,9 +166,9 @@ def test_a_tiny_build_writes_the_policy_and_its_card(tmp_path, capsys):
     for text in (
         "# Shipped policy: intersection",
         command,
-        "OMP_NUM_THREADS=1 truckrl train experiment=pretrained_intersection seed=0 "
+        "truckrl train experiment=pretrained_intersection seed=0 "
         f"total_frames={2 * TINY_BATCH} env.max_steps=20",
-        f"hydra.run.dir={run_dir}",
+        f"threads=1 hydra.run.dir={run_dir}",
         f"| commit | `{facts['commit']}` (",
         f"| frames | {2 * TINY_BATCH} |",
         "| torch threads | 1 |",

@@ -7,7 +7,7 @@ with one command (``make pretrained TASK=<task>``).
 From a work tree without uncommitted changes (``allow_dirty=true`` builds from one anyway, and
 the card says so), it
 
-1. trains the task's one preset, ``truckrl train experiment=pretrained_<task> seed=S
+1. trains the task's one preset, ``truckrl train experiment=pretrained_<task> seed=S threads=N
    hydra.run.dir=RUN`` (``truckrl/tasks/<task>/conf/experiment/pretrained_<task>.yaml``: a
    frame budget, ``max_minutes`` null, held-out checks by frames, so the result does not depend
    on the machine's speed), in a child process as a user would;
@@ -82,7 +82,11 @@ class PretrainedConfig:
     episodes: int = param(1000, lo=1, hi=1_000_000, doc="held-out scenes per scene seed")
     eval_seeds: tuple[int, ...] = param(EVAL_SEEDS, lo=0, hi=2**62, doc="held-out scene seeds")
     threads: int | None = param(
-        None, lo=1, hi=1024, doc="torch CPU threads of training and evaluation; null: torch's"
+        None,
+        lo=1,
+        hi=1024,
+        doc="torch CPU threads of training and evaluation; null: torch's "
+        "default here, passed on as train's threads=N",
     )
     allow_dirty: bool = param(
         False, doc="build from a work tree with uncommitted changes (the card says dirty)"
@@ -97,6 +101,8 @@ class PretrainedConfig:
         validate(self)
         if not self.task:
             raise ConfigError(f"task is required: task={'|'.join(TASKS)}")
+        if "threads" in self.train:
+            raise ConfigError("train.threads: give threads=N, which this command passes on")
         if self.out is not None and not self.out.endswith(".pt"):
             raise ConfigError(f"out = {self.out!r}: a .pt file to write")
 
@@ -141,10 +147,16 @@ def _writable_dir(path: Path, name: str) -> None:
         ) from None
 
 
-def train_command(task: str, seed: int, overrides: list[str], run_dir: Path) -> list[str]:
-    """``truckrl train experiment=pretrained_<task> seed=S OVERRIDE... hydra.run.dir=RUN``."""
-    head = [f"experiment=pretrained_{task}", f"seed={seed}", *overrides]
-    return ["truckrl", "train", *head, f"hydra.run.dir={_quote(str(run_dir))}"]
+def train_command(head: list[str], threads: int, run_dir: Path) -> list[str]:
+    """``truckrl train experiment=pretrained_<task> seed=S OVERRIDE... threads=N
+    hydra.run.dir=RUN`` from ``head`` (the experiment, the seed and the overrides)."""
+    return [
+        "truckrl",
+        "train",
+        *head,
+        f"threads={threads}",
+        f"hydra.run.dir={_quote(str(run_dir))}",
+    ]
 
 
 def table(heldouts: dict[int, dict]) -> str:
@@ -172,16 +184,14 @@ def table(heldouts: dict[int, dict]) -> str:
     return "\n".join(lines)
 
 
-def train_child(command: list[str], threads: int) -> int:
-    """Run ``command`` (``truckrl train ...``) as ``python -m truckrl ...`` with ``threads``
-    torch threads; its exit code. A Ctrl-C reaches the child (the terminal signals the process
-    group), which stops at its next iteration boundary with a checkpoint: this process waits for
-    it instead of killing it."""
+def train_child(command: list[str]) -> int:
+    """Run ``command`` (``truckrl train ...``) as ``python -m truckrl ...``; its exit code. A
+    Ctrl-C reaches the child (the terminal signals the process group), which stops at its next
+    iteration boundary with a checkpoint: this process waits for it instead of killing it."""
     import signal
     import threading
 
-    env = {**os.environ, "OMP_NUM_THREADS": str(threads)}
-    child = subprocess.Popen([sys.executable, "-m", "truckrl", *command[1:]], env=env)
+    child = subprocess.Popen([sys.executable, "-m", "truckrl", *command[1:]])
     if threading.current_thread() is not threading.main_thread():
         return child.wait()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -297,9 +307,9 @@ def run(cfg: PretrainedConfig, argv: list[str], overrides: list[str]) -> dict:
 
     threads = cfg.threads or torch.get_num_threads()
     command = shlex.join(["truckrl", "tools", "pretrained", *argv])
-    train = train_command(task, cfg.seed, overrides, run_dir)
+    train = train_command(head, threads, run_dir)
     print(f"{command}\ntraining: {shlex.join(train)}", flush=True)
-    code = train_child(train, threads)
+    code = train_child(train)
     ckpt = run_dir / CHECKPOINT_DIR / (BEST_NAME if cfg.checkpoint == "best" else LAST_NAME)
     if code != 0 or not ckpt.is_file():
         raise ConfigError(
@@ -330,7 +340,7 @@ def run(cfg: PretrainedConfig, argv: list[str], overrides: list[str]) -> dict:
         "source": recorded,
         "commit": commit_of(recorded) or "unknown (not a git checkout)",
         "command": command,
-        "train_command": f"OMP_NUM_THREADS={threads} {shlex.join(train)}",
+        "train_command": shlex.join(train),
         "run_dir": str(run_dir),
         "checkpoint": cfg.checkpoint,
         "frames": int(state["counters"]["frames"]),
