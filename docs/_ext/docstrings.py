@@ -128,11 +128,13 @@ def _resolve_relative(
     app: Sphinx, env: BuildEnvironment, node: nodes.Element, contnode: nodes.Element
 ) -> nodes.Element | None:
     """Resolve a Python reference by the documented object ending in its target (item 4)."""
-    if node.get("refdomain") != "py" or node.get("refspecific"):
+    if node.get("refdomain") != "py":
         return None
     domain = env.domains["py"]
     module = node.get("py:module") or ""
     target = node["reftarget"]
+    if node.get("refspecific"):  # the domain has searched by suffix already (type annotations)
+        return contnode if module and _external(module, target) else None
     if target.startswith("truckrl."):
         defined = _defined_at(target)
         if defined and defined != target:
