@@ -49,9 +49,9 @@ ABOUT = "Training runs of one config over seeds: per-seed figures, their IQM and
 #: The level whose first arrival the time metrics measure (the paper's goal).
 TARGET_DIFFICULTY = 6.0
 #: Training config fields that may differ between the runs of one config: what makes it a
-#: different seed (``seed``), how a run was started or resumed, where it logs and saves, and
-#: the device.
-PER_RUN = ("seed", "resume", "overwrite", "init", "log", "checkpoint", "device")
+#: different seed (``seed``), how a run was resumed, where it logs and saves, and the hardware
+#: it ran on (device, torch threads).
+PER_RUN = ("seed", "resume", "overwrite", "log", "checkpoint", "device", "threads")
 #: Metric name -> unit, in the JSON's order.
 UNITS = {
     "heldout_success": "fraction of held-out scenes",
