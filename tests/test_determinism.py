@@ -23,7 +23,9 @@ import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from tests.conftest import TINY_BATCH, TINY_TRAIN, run_cli
+from tests.conftest import TINY_BATCH, TINY_TRAIN, compose_config, run_cli
+from truckrl.cli import to_config
+from truckrl.config.schemas import TrainConfig
 from truckrl.rl.checkpoint import load_checkpoint
 
 pytestmark = pytest.mark.e2e
@@ -118,10 +120,39 @@ def test_the_same_seed_and_threads_give_the_same_run(twins):
 
 def test_resuming_the_same_checkpoint_twice_gives_the_same_run(twins, tmp_path):
     """One twin's last.pt (iteration 3) continued twice for two iterations, each time into a new
-    run dir (a branch: ``resume=<file> hydra.run.dir=<new>``)."""
+    run dir (a branch: ``resume=<file> hydra.run.dir=<new>``), on two threads (a resume takes
+    ``threads`` from its command line): a reduction split over threads is split the same way
+    each time, so this is bit-exact too."""
     last = twins[0] / "checkpoints" / "last.pt"
     c, d = tmp_path / "c", tmp_path / "d"
     for run in (c, d):
-        train(run, f"resume={last}", f"total_frames={5 * TINY_BATCH}")
+        train(run, f"resume={last}", f"total_frames={5 * TINY_BATCH}", "threads=2")
     assert load_checkpoint(c)["counters"]["iteration"] == 5
     assert_same_run(c, d)
+
+
+def test_threads_are_set_before_the_run_builds_anything(monkeypatch, tmp_path):
+    """``threads=3``: torch runs on 3 threads by the time the trainer is made (what the run dir
+    line of the log then reports); null leaves torch's own count."""
+    import truckrl.rl.trainer
+    from truckrl.train import train as train_session
+
+    seen = []
+
+    class Built(Exception):
+        pass
+
+    def trainer(*args, **kwargs):
+        seen.append(torch.get_num_threads())
+        raise Built
+
+    monkeypatch.setattr(truckrl.rl.trainer, "Trainer", trainer)
+    before = torch.get_num_threads()
+    try:
+        for threads in ("threads=3", "threads=null"):
+            tc = to_config(TrainConfig, compose_config("train", *TINY_TRAIN, threads))
+            with pytest.raises(Built):
+                train_session(tc, tmp_path)
+    finally:
+        torch.set_num_threads(before)
+    assert seen == [3, 3]

@@ -22,6 +22,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import torch
 import yaml
 
 from truckrl.config.fields import ConfigError
@@ -181,7 +182,8 @@ class Trainer:
                 (run_dir / "demos.json").write_text(json.dumps(demos, indent=2) + "\n")
             if self.parent:
                 write_parent(run_dir, self.parent)
-        log.info(f"run dir: {run_dir}; batch {tc.collector.frames_per_batch:,} frames/iteration")
+        log.info(f"run dir: {run_dir}; batch {tc.collector.frames_per_batch:,} frames/iteration; "
+                 f"{torch.get_num_threads()} torch threads")  # fmt: skip
 
     # ------------------------------------------------------------------ the loop
     @property
@@ -198,8 +200,6 @@ class Trainer:
     def _span(self, timings: dict | None, name: str, since: float) -> float:
         """End span ``name`` begun at ``since`` (waiting for the device first when syncing)."""
         if self.sync_timings and self.tc.device.startswith("cuda"):
-            import torch
-
             torch.cuda.synchronize(self.tc.device)
         now = time.perf_counter()
         if timings is not None:
