@@ -28,7 +28,6 @@ def test_recorded_paths_start_at_the_start_and_stop_with_the_episode(tiny_checkp
 
 
 def test_select_keeps_the_episodes_in_every_named_bin_of_the_task():
-    pytest.importorskip("truckrl.tasks.intersection")
     results = {
         "success": torch.tensor([True, False, False, True]),
         "route": torch.tensor([3, 3, 2, 3]),
@@ -82,6 +81,12 @@ def test_cli_draws_one_row_per_checkpoint_in_the_same_scenes(tiny_checkpoint, tm
     top, bottom = img[:360], img[364:]
     label_rows = 30  # the labels differ ("a" / "b"); the drawings must not
     assert np.array_equal(top[label_rows:], bottom[label_rows:])
+    # each of the row's two tiles shows a scene with a driven path (PATH_COLOR, RGB; cv2 reads
+    # BGR), not a blank or uniform tile
+    for tile in (top[label_rows:, :360], top[label_rows:, 364:]):
+        assert len(np.unique(tile.reshape(-1, 3), axis=0)) > 20
+        path_px = (np.abs(tile[..., ::-1].astype(int) - PATH_COLOR).max(-1) < 40).sum()
+        assert path_px > 10, path_px
     text = capsys.readouterr().out
     assert "6 of 6 scenes (seed 12345" in text and "drawn: scenes [0, 1]" in text
 
