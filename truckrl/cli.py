@@ -580,3 +580,46 @@ def git_revision() -> dict[str, str | bool]:
     except (OSError, subprocess.SubprocessError):
         return {}
     return {"commit": commit, "dirty": dirty}
+
+
+def invoked_command(argv: list[str] | None = None) -> str:
+    """The command line as typed: ``truckrl <command> ...`` for the console script (Hydra
+    commands see ``argv[0]`` rewritten to ``truckrl <command>``), else ``python <argv>``."""
+    import os
+    import shlex
+
+    argv = list(sys.argv if argv is None else argv)
+    head, rest = (argv[0] if argv else ""), argv[1:]
+    if head.startswith("truckrl "):
+        return shlex.join([*head.split(" "), *rest])
+    if os.path.basename(head) == "truckrl":
+        return shlex.join(["truckrl", *rest])
+    return shlex.join(["python", *argv])
+
+
+def provenance(device: str = "cpu") -> dict[str, Any]:
+    """Where a figure came from, as the docs' generated pages print it: the command, the
+    machine, the source commit (``-dirty`` when the work tree had changes), the UTC date, torch's
+    CPU threads, the device and the 1-minute load average (figures from a loaded machine are not
+    comparable with an idle one's)."""
+    import datetime
+    import os
+    import platform
+
+    import torch
+
+    rev = git_revision()
+    commit = rev.get("commit")
+    if commit and rev.get("dirty"):
+        commit = f"{commit}-dirty"
+    cpu = platform.processor() or platform.machine()
+    return {
+        "command": invoked_command(),
+        "machine": f"{platform.system()} {platform.release()}, {cpu}, {os.cpu_count()} CPUs, "
+        f"Python {platform.python_version()}, torch {torch.__version__}",
+        "commit": commit or "not recorded (not a git checkout)",
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "threads": torch.get_num_threads(),
+        "device": device,
+        "load_avg_1min": round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None,
+    }

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig
 
-from truckrl.cli import hydra_entry
+from truckrl.cli import hydra_entry, provenance
 
 if TYPE_CHECKING:
     from truckrl.config.schemas import EvaluateConfig
@@ -140,7 +140,7 @@ def evaluate(ec: EvaluateConfig) -> dict:
         print(f"no per-category table: task {task!r} declares no scene categories")
     print(json.dumps({**summary, "output": str(output)}))
     try:
-        write_json(output, summary)
+        write_json(output, {"provenance": provenance(ec.device), **summary})
     except OSError as e:
         sys.stdout.flush()  # the results first, then the one-line error (stderr)
         raise ConfigError(

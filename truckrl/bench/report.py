@@ -114,7 +114,16 @@ def write_json(name: str, payload: dict[str, Any], out: str | Path | None = None
     out = Path(out) if out is not None else DEFAULT_OUT_DIR
     path = out if out.suffix == ".json" else out / f"{name}-{stamp}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    record = {"benchmark": name, "time": stamp, "machine": machine_info(), **payload}
+    from truckrl.cli import provenance
+
+    device = str(payload.get("device", "cpu"))
+    record = {
+        "benchmark": name,
+        "time": stamp,
+        "provenance": provenance(device),
+        "machine": machine_info(),
+        **payload,
+    }
     path.write_text(json.dumps(record, indent=2, default=str))
     print(f"\nwrote {path}", flush=True)
     return path
