@@ -29,7 +29,7 @@ is recorded as :attr:`DockSceneBatch.frame`).
   checked by :class:`DockSceneConfig`).
 
 Goal and start (the truck: tractor rear axle, articulation 0)
-------------------------------------------------------------
+-------------------------------------------------------------
 * **Goal.** The trailer's rear-centre at ``(0, dock_gap)`` (``dock_gap`` in front of the dock
   face, in the middle of the target bay), the trailer heading along ``+y`` (away from the dock: the
   truck reverses in). The goal pose is the tractor rear axle of that truck,

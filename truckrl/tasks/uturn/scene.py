@@ -13,7 +13,7 @@ randomness, and emitted as line segments ``[N, E, 4]`` (``E =`` :data:`NUM_SEGME
 mask and a ``kind`` per segment (all :data:`~truckrl.sim.geometry.KIND_CURB`).
 
 Layout (local frame, then rotated by a uniform heading and shifted by ``center_jitter``)
----------------------------------------------------------------------------------------
+----------------------------------------------------------------------------------------
 * **Road.** Along ``+x`` with its centreline on ``y = 0``, curbs at ``y = +-W / 2`` (``W`` =
   ``road_width``), from ``x = -half_extent`` to ``x = +half_extent`` or, in a dead-end scene, to
   an end wall at ``x_end``.
@@ -42,7 +42,7 @@ curb), its rear axle ``goal_back`` metres behind the start's rear axle (``x_goal
 goal_back``). Both footprints lie on the straight road before the mouth, so both are free.
 
 Why the truck must reverse (the forward-U-turn criterion, checked per scene)
----------------------------------------------------------------------------
+----------------------------------------------------------------------------
 The tractor's rear axle follows a path of curvature at most ``1 / R``, ``R = L_t / tan(max_steer)``
 (``theta_dot = v tan(delta) / L_t``). Going forward from heading 0 to heading ``pi`` it moves
 sideways by at least ``2 R``: on the stretch where the heading is inside ``(0, pi)``,
@@ -67,7 +67,7 @@ branch with the nose at the curb line), and ``branch_width >= W_max + 2 * branch
 (``W_max`` the wider body). The road width is at least the truck width plus the lane gaps.
 
 Metadata (``UTurnSceneBatch.info``, each ``[N]``, see :data:`INFO_KEYS`)
------------------------------------------------------------------------
+------------------------------------------------------------------------
 ``road_width`` [m], ``branch_width`` [m] (across its axis), ``branch_depth`` [m] (from the curb
 line, perpendicular to the road), ``branch_side`` (+1 left, -1 right), ``branch_angle`` [rad]
 (axis from the start's heading, unsigned in ``(0, pi)``), ``goal_distance`` [m] (start to goal
