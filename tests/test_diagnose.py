@@ -9,7 +9,12 @@ import torch
 from tests.rl.test_uturn_driver import FIXED_TRUCK
 from truckrl.sim.collision import touching
 from truckrl.tasks import EnvConfig
-from truckrl.tasks.uturn.diagnosis import diagnose, summarize_diagnosis, trailer_depth
+from truckrl.tasks.uturn.diagnosis import (
+    OUTCOME_NAMES,
+    diagnose,
+    summarize_diagnosis,
+    trailer_depth,
+)
 from truckrl.tasks.uturn.scene import DEAD_END_SLOT, SEGMENT_NAMES
 from truckrl.tools.diagnose import main
 
@@ -116,9 +121,20 @@ def test_cli_refuses_bad_input_in_one_line(capsys):
 
 
 def test_cli_finds_the_diagnosis_of_the_checkpoints_task(capsys, tmp_path):
+    import json
+
     out = tmp_path / "rows.json"
     assert main(["checkpoint=pretrained:uturn", "episodes=2", f"out={out}"]) == 0
-    assert "pretrained" in capsys.readouterr().out and out.is_file()
+    printed = capsys.readouterr().out
+    assert "uturn/pretrained.pt: 2 scenes (seed 12345)" in printed
+    # the file holds the printed rows: one per (branch, outcome), the 2 episodes between them
+    rows = json.loads(out.read_text())
+    assert sum(r["episodes"] for r in rows) == 2
+    for r in rows:
+        assert r["branch"] in ("left", "right") and r["outcome"] in OUTCOME_NAMES
+        assert f"{r['branch']:7s}{r['outcome']:12s}{r['episodes']:9d}" in printed
+        if r["outcome"] == "collision":  # a collided truck touched something
+            assert sum(r["touched"].values()) >= r["episodes"]
 
 
 def test_a_diagnosis_without_the_whole_contract_is_one_line(tmp_path, monkeypatch):
