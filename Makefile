@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 ARGS ?=
 
-.PHONY: setup train test lint format bench scenes play docs clean
+.PHONY: setup train test lint format bench scenes play docs pretrained clean
 
 $(STAMP): pyproject.toml
 	test -d $(VENV) || $(PY) -m venv $(VENV)
@@ -41,6 +41,11 @@ play: $(STAMP)
 
 scenes: $(STAMP)
 	$(BIN)/truckrl tools scenes $(ARGS)
+
+# A shipped policy rebuilt from a clean commit by its preset, stopped by frames, with its card:
+# make pretrained TASK=intersection|dock|uturn (truckrl tools pretrained --help).
+pretrained: $(STAMP)
+	$(BIN)/truckrl tools pretrained task=$(TASK) $(ARGS)
 
 # The documentation site: the generated fragments (docs/render.py, where it exists), then HTML
 # into docs/_build/html with every warning an error (-W; -n: unresolved references too). A broken

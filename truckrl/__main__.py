@@ -65,7 +65,7 @@ def tools_usage() -> str:
             "usage: truckrl tools <tool> [KEY=VALUE ...]",
             "",
             "tools:",
-            *(f"  {name:<9}{about}" for name, (_, about) in TOOLS.items()),
+            *(f"  {name:<12}{about}" for name, (_, about) in TOOLS.items()),
             "",
             "truckrl tools <tool> --help lists a tool's keys.",
         ]
