@@ -88,10 +88,12 @@ def test_config_errors():
 
 @pytest.mark.e2e
 def test_cli_writes_next_to_the_run_and_bad_checkpoint_is_exit_2(tiny_checkpoint, tmp_path):
-    run, _, _ = tiny_checkpoint
+    run, ac, tc = tiny_checkpoint
     proc = run_cli("export", f"checkpoint={run}", "format=torchscript", f"hydra.run.dir={tmp_path}")
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert (run / "export" / "policy.pt").is_file()
+    model = torch.jit.load(str(run / "export" / "policy.pt"))  # this run's actor, beside it
+    obs, lidar = random_inputs(5, 26, tc.env.lidar.num_beams, seed=3)
+    torch.testing.assert_close(model(obs, lidar), actor_mean(ac, obs, lidar), atol=1e-5, rtol=0)
     proc = run_cli("export", f"checkpoint={tmp_path / 'none'}", f"hydra.run.dir={tmp_path}")
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
