@@ -14,10 +14,12 @@ DOCS = Path(__file__).resolve().parent
 sys.path.insert(0, str(DOCS / "_ext"))  # the local extensions
 sys.path.insert(0, str(DOCS.parent))  # the package, importable without installing it
 
+import truckrl  # noqa: E402  (after the path above; cheap: the public names load on use)
+
 project = "truckrl"
-author = "truckrl contributors"
-copyright = "truckrl contributors, MIT license"
-release = version = "0.1.0"
+author = "the truckrl authors"
+copyright = "the truckrl authors, MIT license"
+release = version = truckrl.__version__  # written once, in truckrl/__init__.py
 
 extensions = [
     "myst_parser",
