@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU figures of the README (Benchmarks, GPU), in one go, on a machine with one CUDA GPU and
+# The GPU figures of docs/benchmarks.md ("GPU"), in one go, on a machine with one CUDA GPU and
 # truckrl's dependencies importable. Run from the repository root:
 #
 #   launch/gpu.sh OUT [checks|train|demos|all] [MINUTES]

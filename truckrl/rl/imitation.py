@@ -1,7 +1,7 @@
 """Behaviour cloning from demonstrations: a start for PPO that already drives every route.
 
-PPO from scratch can settle on standing still where its first attempts crash (docs/training.md, "Learning
-quality"): with the paper's rewards and discount a timeout later costs less than a crash now.
+PPO from scratch can settle on standing still where its first attempts crash (docs/ablations.md, "Right
+turns from scratch"): with the paper's rewards and discount a timeout later costs less than a crash now.
 Demonstrations of successful episodes give it a start that drives. This module turns them into a
 policy start:
 

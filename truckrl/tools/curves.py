@@ -1,7 +1,7 @@
 """``truckrl tools curves``: a training run's learning curves as a PNG, and the first time each
 difficulty was reached as a table (:mod:`truckrl.viz.curves`).
 
-    truckrl tools curves run=outputs/RUN_DIR out=docs/learning_curve.png
+    truckrl tools curves run=outputs/RUN_DIR out=curve.png
 
 Bad input (no run dir, a run without TensorBoard scalars) prints one line and exits with code 2.
 """

@@ -1,6 +1,6 @@
 """Learning curves of a training run as an image, drawn with OpenCV (no plotting library needed).
 
-``truckrl tools curves run=outputs/RUN_DIR out=docs/learning_curve.png``
+``truckrl tools curves run=outputs/RUN_DIR out=curve.png``
 (:mod:`truckrl.tools.curves`) reads the run's TensorBoard events (``<run_dir>/tb``) and draws, against wall-clock minutes,
 the curriculum difficulty, the success rate with its EMA, and the final position error. The same
 data is printed as a table of the first time each difficulty was reached.
