@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from tensordict.nn import TensorDictModule
 
 import truckrl.evaluate as evaluate_module
 import truckrl.evaluation.rollout as rollout_module
@@ -70,17 +71,30 @@ def test_category_rows_match_an_independent_recomputation(tiny_checkpoint):
 
 
 def test_outcomes_agree_with_final_errors(tiny_checkpoint):
-    _, ac, tc = tiny_checkpoint
-    res, (tol_m, tol_deg), _ = evaluate_policy(ac.actor, tc.env, 0.0, episodes=24, seed=5)
+    _, _, tc = tiny_checkpoint
+    # a scripted closed-loop driver (half throttle, steering against the lateral goal offset):
+    # it reaches some goals, hits some curbs and times out elsewhere (the untrained checkpoint
+    # only times out)
+    actor = TensorDictModule(
+        lambda obs: torch.stack(
+            [torch.full_like(obs[:, 0], 0.6), (-0.3 * obs[:, 1]).clamp(-1, 1)], -1
+        ),
+        in_keys=["observation"],
+        out_keys=["action"],
+    )
+    res, (tol_m, tol_deg), _ = evaluate_policy(actor, tc.env, 0.0, episodes=24, seed=5)
     assert tol_m == pytest.approx(30.0) and tol_deg == pytest.approx(60.0)  # paper: difficulty 0
-    ended = res["success"] | res["collision"] | res["jackknife"] | res["truncated"]
-    assert ended.all()
-    s = res["success"]
-    assert (res["pos_error"][s] <= tol_m).all()
-    assert (res["tractor_heading_error"][s] <= tol_deg + 1e-4).all()
-    assert (res["trailer_heading_error"][s] <= tol_deg + 1e-4).all()
-    assert (res["length"][res["truncated"]] == MAX_STEPS).all()
-    assert ((res["length"] >= 1) & (res["length"] <= MAX_STEPS)).all()
+    s, t = res["success"], res["truncated"]
+    assert s.any() and t.any() and res["collision"].any()  # every check below selects something
+    ended = s.int() + res["collision"].int() + res["jackknife"].int() + t.int()
+    assert (ended == 1).all()  # exactly one outcome per episode
+    within = (
+        (res["pos_error"] <= tol_m)
+        & (res["tractor_heading_error"] <= tol_deg + 1e-4)
+        & (res["trailer_heading_error"] <= tol_deg + 1e-4)
+    )
+    assert within[s].all() and not within[t].any()  # a time-out never ends within tolerance
+    assert (res["length"][t] == MAX_STEPS).all()
 
 
 @pytest.mark.e2e
