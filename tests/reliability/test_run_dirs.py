@@ -66,7 +66,10 @@ def test_resuming_the_newest_checkpoint_continues_in_its_run_dir(old_run, tmp_pa
     assert argv[1] == f"hydra.run.dir={old_run}" and "hydra.output_subdir=null" in argv
     elsewhere = tmp_path / "elsewhere"  # another dir named explicitly: a branch, not a takeover
     run_session(elsewhere, f"total_frames={5 * BATCH}", f"resume={newest}")
-    assert (elsewhere / "parent.json").is_file()
+    parent = json.loads((elsewhere / "parent.json").read_text())
+    assert parent["run_dir"] == str(old_run) and parent["iteration"] == 4
+    assert parent["checkpoint"] == str(newest)
+    assert assert_consistent(elsewhere)["iteration"] == 5  # one iteration on from the parent
     assert ckpt.load_checkpoint(old_run)["counters"]["iteration"] == 4
 
 
