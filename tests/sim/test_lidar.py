@@ -354,10 +354,8 @@ def test_sweep_scene_change_invalidates_cache():
 
 
 def test_generated_scenes_agree_with_oracle():
-    scene = pytest.importorskip("truckrl.tasks.intersection.scene")
-    if not hasattr(scene, "generate_scenes"):
-        pytest.skip("scene generator not available")
     from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params
+    from truckrl.tasks.intersection import scene
 
     g = torch.Generator().manual_seed(21)
     n = 64
@@ -373,7 +371,8 @@ def test_generated_scenes_agree_with_oracle():
             * (k > 0)
         )
         pose = batch.start.to(F64) + jitter
-        assert_agree(pose[:, :2], pose[:, 2], segs, mask, rel)
+        want = assert_agree(pose[:, :2], pose[:, 2], segs, mask, rel)
+        assert (want < MAX_RANGE).float().mean() > 0.2 and (want == MAX_RANGE).any()
 
 
 @pytest.mark.slow
