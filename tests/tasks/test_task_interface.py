@@ -4,6 +4,7 @@ agent and evaluation; the task core runs without TorchRL."""
 import subprocess
 import sys
 
+import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
@@ -53,11 +54,20 @@ def test_agent_and_evaluation_run_the_second_task():
     results, _, errors = evaluate_policy(ac.actor, cfg, 3.0, episodes=6, seed=1)
     assert [q.key for q in errors] == ["distance_error"]
     assert results["distance_error"].shape == (6,)
-    env = reach_env()
+    # goals 40 m ahead (beyond the 30 m tolerance): the untrained policy's episodes time out
+    # after 30 steps; the tracker's figures, counted here from the batch
+    env = reach_env(distance=40.0)
     with torch.no_grad():
-        batch = env.rollout(25, ac.actor, break_when_any_done=False)
+        batch = env.rollout(35, ac.actor, break_when_any_done=False)
     stats = EpisodeTracker(task.reward_keys, errors).update(batch)
-    assert "return/r_approach" in stats and "final_distance_error" in stats
+    nxt = batch["next"]
+    done = nxt["done"].squeeze(-1)
+    assert stats["episodes"] == done.sum() == 8 and stats["timeout_rate"] == 1.0
+    assert stats["length"] == 30.0
+    final = nxt["distance_error"].squeeze(-1)[done]
+    assert stats["final_distance_error"].item() == pytest.approx(final.mean().item(), rel=1e-6)
+    approach = nxt["r_approach"].squeeze(-1)[:, :30].sum(-1)  # each env's first episode
+    assert stats["return/r_approach"].item() == pytest.approx(approach.mean().item(), abs=1e-5)
 
 
 def test_task_core_runs_without_torchrl():
