@@ -43,7 +43,8 @@ def test_mp4_is_h264_and_decodes_frame_exact(tmp_path):
 
 
 def test_cv2_reads_the_mp4_too(tmp_path):
-    cv2 = pytest.importorskip("cv2")
+    import cv2  # a dependency of the package (opencv-python-headless): never skipped
+
     path = write_mp4(tmp_path / "v.mp4", numbered_frames(6, 64, 96), fps=25.0)
     cap = cv2.VideoCapture(str(path))
     assert cap.get(cv2.CAP_PROP_FRAME_COUNT) == 6 and cap.get(cv2.CAP_PROP_FPS) == 25.0
