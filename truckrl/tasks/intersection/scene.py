@@ -373,7 +373,8 @@ class SceneBatch:
             getattr(self, f.name)[index] = getattr(other, f.name)
 
     def to(self, device) -> SceneBatch:
-        """A copy on ``device``."""
+        """The scenes on ``device``: a copy on another device, the same tensors (no copy) on this
+        one, as ``Tensor.to``; ``.assign`` on the result then writes into ``self`` too."""
         return SceneBatch(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
 
 
