@@ -241,7 +241,9 @@ def _iterations(opts: TrainBenchConfig, tc: Any) -> tuple[list[dict[str, Any]], 
     with videos, held-out checks, the progress bar and demonstrations off (not per-iteration
     work). Returns one :func:`_row` per iteration, in order, and the last iteration's profiler
     (``None`` when not profiled)."""
-    log = dataclasses.replace(tc.log, video_interval=0, eval_interval_min=0, progress_bar=False)
+    log = dataclasses.replace(
+        tc.log, video_interval=0, eval_interval_min=0, eval_interval_frames=None, progress_bar=False
+    )
     timed_tc = dataclasses.replace(tc, log=log, demos=dataclasses.replace(tc.demos, episodes=0))
     device = torch.device(tc.device)
     rows: list[dict[str, Any]] = []

@@ -1,6 +1,7 @@
 """Held-out evaluation during training: a fixed set of scenes the run never trains on.
 
-Every ``log.eval_interval_min`` minutes of wall clock, ``truckrl train`` runs
+Every ``log.eval_interval_frames`` training frames where that is set (else every
+``log.eval_interval_min`` minutes of wall clock), ``truckrl train`` runs
 :func:`~truckrl.evaluation.rollout.evaluate_policy` (mean action, one episode per scene, as
 ``truckrl eval``) on ``log.eval_episodes`` scenes drawn from :data:`HELDOUT_SEED`
 at the current curriculum difficulty, and logs :func:`heldout_scalars` to TensorBoard:
