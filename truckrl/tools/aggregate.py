@@ -16,7 +16,8 @@ subfolders are runs (a Hydra multirun dir). The runs must share their training c
   ``curriculum/difficulty`` of at least 6 (null: never reached); the minutes are the wall clock
   of its TensorBoard events since the first one, plus the demonstrations' ``seconds`` from
   ``demos.json`` (planned and cloned before the first event), so they count from the run's start
-  as docs/training.md does (a resumed run's pause counts too);
+  as docs/training.md does (a resumed run's pause between sessions does not count:
+  :func:`truckrl.viz.curves.load_scalars`);
 * ``final_difficulty``: the curriculum difficulty of its last.pt.
 
 Across seeds: the IQM and a 95 % percentile bootstrap interval of each (a seed that never

@@ -22,23 +22,46 @@ LINE_COLORS = ((70, 140, 255), (235, 145, 45))  # RGB, first and second series o
 
 
 def load_scalars(run_dir: str | Path) -> dict[str, np.ndarray]:
-    """``{tag: [K, 3] array of (wall minutes since start, frames, value)}`` from ``run_dir/tb``."""
+    """``{tag: [K, 3] array of (wall minutes since start, frames, value)}`` from ``run_dir/tb``.
+
+    Minutes count training sessions only: a resumed run writes one event file per session, and
+    each later file's clock is shifted to start where the previous file's last event was, so the
+    time a run lay stopped between sessions is not counted (the time before a session's first
+    event, e.g. compiling, is not either).
+    """
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     tb = Path(run_dir) / "tb"
     if not tb.is_dir():
         raise FileNotFoundError(f"no TensorBoard directory at {tb}")
-    acc = EventAccumulator(str(tb), size_guidance={"scalars": 0})
-    acc.Reload()
-    out = {}
-    for tag in acc.Tags()["scalars"]:
-        ev = acc.Scalars(tag)
-        out[tag] = np.array([(e.wall_time, e.step, e.value) for e in ev], dtype=np.float64)
-    if not out:
+    # events.out.tfevents.<start time>.<host>.<pid>.<n>: a session's writers share its pid
+    groups: dict[str, list[Path]] = {}
+    for f in sorted(tb.glob("events.out.tfevents.*"), key=lambda f: int(f.name.split(".")[3])):
+        groups.setdefault(f.name.rsplit(".", 2)[-2], []).append(f)
+    sessions: list[dict[str, np.ndarray]] = []
+    for group in groups.values() or [[tb]]:
+        got: dict[str, list] = {}
+        for f in group:
+            acc = EventAccumulator(str(f), size_guidance={"scalars": 0})
+            acc.Reload()
+            for tag in acc.Tags()["scalars"]:
+                got.setdefault(tag, []).extend(
+                    (e.wall_time, e.step, e.value) for e in acc.Scalars(tag)
+                )
+        if got:
+            sessions.append({t: np.array(sorted(v), dtype=np.float64) for t, v in got.items()})
+    if not sessions:
         raise ValueError(f"no scalars in {tb}")
-    t0 = min(v[0, 0] for v in out.values())
-    for v in out.values():
-        v[:, 0] = (v[:, 0] - t0) / 60.0
+    end = 0.0  # [s] training time at the end of the sessions so far
+    for got in sessions:
+        t0 = min(v[0, 0] for v in got.values())
+        t1 = max(v[-1, 0] for v in got.values())
+        for v in got.values():
+            v[:, 0] = (v[:, 0] - t0 + end) / 60.0
+        end += t1 - t0
+    out = {}
+    for tag in {t for got in sessions for t in got}:
+        out[tag] = np.concatenate([got[tag] for got in sessions if tag in got])
     return out
 
 
