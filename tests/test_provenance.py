@@ -32,3 +32,15 @@ def test_provenance_names_commit_date_machine_and_threads(monkeypatch):
     assert re.fullmatch(r"[0-9a-f]{40}(-dirty)?|not recorded.*", p["commit"])
     assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC", p["date"])
     assert "CPUs" in p["machine"] and p["threads"] >= 1 and p["device"] == "cpu"
+
+
+def test_an_eval_json_names_the_command_as_typed(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "e.json"
+    args = ["eval", "checkpoint=pretrained", "episodes=2", f"output={out}"]
+    subprocess.run([sys.executable, "-m", "truckrl", *args], check=True, capture_output=True)
+    p = json.loads(out.read_text())["provenance"]
+    assert p["command"] == f"truckrl eval checkpoint=pretrained episodes=2 output={out}"

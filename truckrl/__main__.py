@@ -90,6 +90,9 @@ def main(argv: list[str] | None = None) -> int:
         # as `python -m <module>`: the module is __main__ (env workers that spawn starts
         # re-import it and ignore stop signals; Hydra names the job after it)
         sys.argv = [f"truckrl {command}", *rest]
+        from truckrl import cli  # no torch: keeps the line as typed for the JSON's provenance
+
+        cli.TYPED_ARGV[:] = ["truckrl", command, *rest]
         runpy.run_module(HYDRA[command][0], run_name="__main__", alter_sys=True)
         return 0
     if command in PLAIN:

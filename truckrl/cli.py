@@ -236,6 +236,8 @@ def hydra_entry(
     def decorate(fn: Callable[[Any, Any], Any]) -> Callable[[], None]:
         @functools.wraps(fn)
         def main() -> None:
+            if not TYPED_ARGV:
+                TYPED_ARGV[:] = sys.argv
             argv = sys.argv[1:]
             exit_on_help(config_name)
             try:
@@ -582,13 +584,18 @@ def git_revision() -> dict[str, str | bool]:
     return {"commit": commit, "dirty": dirty}
 
 
+#: The command line as typed, kept before it is rewritten (``truckrl.__main__`` sets it before
+#: ``runpy`` replaces ``argv[0]``; :func:`hydra_entry` before the task presets join it).
+TYPED_ARGV: list[str] = []
+
+
 def invoked_command(argv: list[str] | None = None) -> str:
     """The command line as typed: ``truckrl <command> ...`` for the console script (Hydra
     commands see ``argv[0]`` rewritten to ``truckrl <command>``), else ``python <argv>``."""
     import os
     import shlex
 
-    argv = list(sys.argv if argv is None else argv)
+    argv = list((TYPED_ARGV or sys.argv) if argv is None else argv)
     head, rest = (argv[0] if argv else ""), argv[1:]
     if head.startswith("truckrl "):
         return shlex.join([*head.split(" "), *rest])
