@@ -121,7 +121,10 @@ def provenance_line(prov: dict[str, Any]) -> str:
     """The one line under a table: command, machine, device, threads, commit and date."""
     command = prov.get("command") or "not recorded"
     parts = [f"`{command}`" + (" (reconstructed)" if prov.get("reconstructed") else "")]
-    parts.append(f"machine: {prov.get('machine') or 'not recorded'}")
+    machine = prov.get("machine") or "not recorded"
+    if prov.get("load_avg_1min") is not None:  # a loaded machine's figures are not an idle one's
+        machine += f", load average {prov['load_avg_1min']:.1f}"
+    parts.append(f"machine: {machine}")
     if prov.get("device"):
         parts.append(f"device: {prov['device']}")
     if prov.get("threads"):
