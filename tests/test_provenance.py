@@ -27,6 +27,7 @@ def test_the_command_is_the_one_typed(argv, expected):
 
 def test_provenance_names_commit_date_machine_and_threads(monkeypatch):
     monkeypatch.setattr("sys.argv", ["truckrl eval", "episodes=3"])
+    monkeypatch.setattr("truckrl.cli.TYPED_ARGV", [])  # an in-process command earlier kept its own
     p = provenance("cpu")
     assert p["command"] == "truckrl eval episodes=3"
     assert re.fullmatch(r"[0-9a-f]{40}(-dirty)?|not recorded.*", p["commit"])
