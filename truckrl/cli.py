@@ -630,3 +630,21 @@ def provenance(device: str = "cpu") -> dict[str, Any]:
         "device": device,
         "load_avg_1min": round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None,
     }
+
+
+def check_writable(path: Path, field: str) -> None:
+    """Create ``path``'s folder and a probe file in it, or raise ``ConfigError`` naming ``field``
+    (one line). JSON files are written by replacing ``path`` with a file made in the same folder,
+    so a writable folder is what the final write needs."""
+    import tempfile
+
+    from truckrl.config.fields import ConfigError
+
+    try:
+        if path.is_dir():
+            raise IsADirectoryError(21, "is a directory")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"):
+            pass
+    except OSError as e:
+        raise ConfigError(f"{field}={path}: cannot write there ({e.strerror or e})") from None

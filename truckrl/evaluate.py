@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig
 
-from truckrl.cli import hydra_entry, provenance
+from truckrl.cli import check_writable, hydra_entry, provenance
 
 if TYPE_CHECKING:
     from truckrl.config.schemas import EvaluateConfig
@@ -54,24 +54,6 @@ def _tag(env_overrides: dict | None) -> str:
     flat = flat_overrides(env_overrides or {})
     tag = "".join(f"-{k.removeprefix('env.')}={v}" for k, v in flat.items())
     return re.sub(r"[^A-Za-z0-9_.=+-]", "_", tag)
-
-
-def check_writable(path: Path) -> None:
-    """Create ``path``'s folder and a probe file in it, or raise :class:`ConfigError` (one line).
-
-    The JSON is written by replacing ``path`` with a file made in the same folder, so a writable
-    folder is what the final write needs.
-    """
-    from truckrl.config.fields import ConfigError
-
-    try:
-        if path.is_dir():
-            raise IsADirectoryError(21, "is a directory")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"):
-            pass
-    except OSError as e:
-        raise ConfigError(f"output={path}: cannot write there ({e.strerror or e})") from None
 
 
 def write_json(path: Path, data: dict) -> None:
@@ -162,7 +144,7 @@ def _run_checkpoint(ec: EvaluateConfig):
     output = (
         Path(ec.output) if ec.output else default_output(policy.path, difficulty, ec.seed, ec.env)
     )
-    check_writable(output)
+    check_writable(output, "output")
     results, tolerance, errors = evaluate_policy(
         policy.actor, env_cfg, difficulty, ec.episodes, ec.seed, ec.device
     )
@@ -208,7 +190,7 @@ def _run_planner(ec: EvaluateConfig):
         output = Path("outputs") / EVAL_DIR / name
     env_cfg = with_env_overrides(env_cfg, ec.env, fixed=False)
     output = Path(ec.output) if ec.output else output
-    check_writable(output)
+    check_writable(output, "output")
     t0 = time.perf_counter()
     results, tolerance, errors = plan_episodes(
         env_cfg, difficulty, ec.episodes, ec.seed, planner_config(), ec.device

@@ -400,22 +400,6 @@ def render_seeds(runs: list[Run], x: str, width: int = 900, panel_h: int = 240) 
 
 
 # ------------------------------------------------------------------------------- the command
-def _check_writable(path: Path, name: str) -> None:
-    """Make ``path``'s folder and check a file can be created there, or a one-line error."""
-    import tempfile
-
-    try:
-        if path.is_dir():
-            raise IsADirectoryError(21, "is a directory")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"):
-            pass
-    except OSError as e:
-        raise ConfigError(
-            f"{name} = {str(path)!r}: cannot write there ({e.strerror or e})"
-        ) from None
-
-
 def provenance(argv: list[str], runs: list[Run]) -> dict:
     """The command (``argv``: its arguments), machine, the runs' recorded commit(s), date and
     torch threads."""
@@ -436,10 +420,12 @@ def provenance(argv: list[str], runs: list[Run]) -> dict:
 def run(cfg: AggregateConfig, argv: list[str]) -> dict:
     """Read and check every run, evaluate each checkpoint, print, write ``out`` (and ``plot``);
     return the JSON written. ``argv``: the command's arguments, as given (the provenance)."""
+    from truckrl.cli import check_writable
+
     out = Path(cfg.out)
-    _check_writable(out, "out")
+    check_writable(out, "out")
     if cfg.plot:
-        _check_writable(Path(cfg.plot), "plot")
+        check_writable(Path(cfg.plot), "plot")
     runs = [read_run(p, cfg.checkpoint) for p in find_runs(cfg.runs)]
     check_one_config(runs)
     runs.sort(key=lambda r: r.seed)
