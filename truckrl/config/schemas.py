@@ -84,6 +84,32 @@ class LogConfig:
     eval_episodes: int = param(
         200, lo=1, hi=1_000_000, unit="episodes", doc="held-out scenes per evaluation"
     )
+    quality_target: float = param(
+        0.95,
+        lo=0.0,
+        hi=1.0,
+        doc="held-out success rate of a good policy: the first held-out evaluation at or above "
+        "it, at difficulty >= quality_difficulty, logs quality_reached (minutes since the "
+        "run's start, demonstrations included, and frames)",
+    )
+    quality_difficulty: float = param(
+        6.0,
+        lo=0.0,
+        hi=MAX_DIFFICULTY,
+        doc="curriculum difficulty at which quality_target counts",
+        source="paper's goal",
+    )
+    backend: str = param(
+        "tensorboard",
+        choices=("tensorboard", "csv", "wandb", "mlflow"),
+        doc="where scalars and videos go, through TorchRL's logger of that name (wandb and "
+        "mlflow need their extras: pip install 'truckrl[wandb]')",
+    )
+    backend_args: dict[str, Any] = param(
+        {},
+        doc="keyword arguments for the backend's logger (wandb: project=..., offline=true; "
+        "mlflow: tracking_uri=...)",
+    )
 
 
 @dataclass
@@ -209,6 +235,11 @@ class TrainConfig:
         hi=MAX_DIFFICULTY,
         doc="stop once the curriculum reaches this difficulty",
         source="paper's goal",
+    )
+    stop_on_quality: bool = param(
+        False,
+        doc="stop at quality_reached: the first held-out evaluation at or above "
+        "log.quality_target at difficulty >= log.quality_difficulty",
     )
     resume: str | None = param(
         None, doc="checkpoint file or run dir to continue; auto: this run dir's, if any"
