@@ -11,6 +11,7 @@ task           the task interface (``truckrl.tasks``) and each task folder's cor
 viz            drawing from state snapshots (beside ``env``: it reads states, never steps them)
 env            env adapters over the task core (TorchRL's ``EnvBase``)
 evaluation     rollouts, held-out checks, tables; a task folder's ``diagnosis``
+gym            the Gymnasium and Stable-Baselines3 adapters over ``env`` (and ``viz`` to render)
 planning       the planner's search; a task folder's ``expert``
 rl             network, PPO, curriculum, collection, checkpoints, imitation, the trainer
 viewer         the interactive frame loop
@@ -42,6 +43,7 @@ ALLOWED: dict[str, set[str]] = {
     "viz": {"config", "sim", "task"},
     "env": {"config", "sim", "task"},
     "evaluation": {"config", "sim", "task", "env"},
+    "gym": {"config", "sim", "task", "viz", "env", "evaluation"},
     "planning": {"config", "sim", "task", "env", "evaluation"},
     "rl": {"config", "sim", "task", "viz", "env", "evaluation", "planning"},
     "viewer": {"config", "sim", "task", "viz", "env", "evaluation", "rl"},
@@ -164,3 +166,5 @@ def test_layer_of_knows_the_roles():
     with pytest.raises(KeyError):
         layer_of("truckrl.nowhere")
     assert "viz" not in ALLOWED["env"] and "env" not in ALLOWED["viz"]
+    assert layer_of("truckrl.gym.sb3") == "gym" and layer_of("truckrl.gym") == "gym"
+    assert "gym" in ALLOWED["entry"] and "gym" not in ALLOWED["rl"] | ALLOWED["api"]

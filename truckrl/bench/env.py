@@ -7,7 +7,12 @@ Measured with a uniformly random policy (``action_spec.rand()``), resets include
 * ``ParallelEnv`` with W worker processes, each a batched ``TruckEnv`` of N / W trucks;
 * the paper's layout: 24 worker processes each stepping one truck (``ParallelEnv(24, n=1)``),
   measured in the same run so the ratio is side by side;
-* optionally (``collector=true``) ``Collector`` frames/s with the real two-branch policy.
+* optionally (``collector=true``) ``Collector`` frames/s with the real two-branch policy;
+* optionally (``gym=true``) the Gymnasium door beside each batched row:
+  ``gymnasium.make_vec(<default task's id>, num_envs=N)`` (:mod:`truckrl.gym`, numpy arrays out,
+  random numpy actions in) and the TorchRL row measured ``repeats`` times each, alternating,
+  in the same run; the rows carry the medians and ``x torchrl``, the Gymnasium row's median over
+  the TorchRL row's.
 
 Two other sections replace those rows when asked for (both may be given):
 
@@ -25,9 +30,12 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import importlib.util
+import statistics
 import time
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torchrl.envs import EnvBase, ParallelEnv
 
@@ -85,6 +93,12 @@ class EnvBenchConfig:
     )
     paper: bool = param(True, doc="the 24-process paper layout row")
     collector: bool = param(False, doc="also Collector frames/s with the real policy")
+    gym: bool = param(
+        False, doc="also gymnasium.make_vec's VectorEnv at each batched N (needs the gym extra)"
+    )
+    repeats: int = param(
+        3, lo=1, hi=1000, doc="gym: measurements of each of the two rows, alternating (medians)"
+    )
     scaling: bool = param(
         False, doc="instead of the rows above: steps/s against N, beams and obstacles; PNG too"
     )
@@ -125,6 +139,8 @@ def parse(argv: list[str]) -> EnvBenchConfig:
         fail(f"device = {args.device!r}: not a torch device (cpu, cuda, cuda:1)")
     if args.peers and not peers.vmas_available():
         fail(f"peers=true needs VMAS: {peers.INSTALL_HINT}")
+    if args.gym and importlib.util.find_spec("gymnasium") is None:
+        fail("gym=true needs Gymnasium: pip install 'truckrl[gym]'")
     return args
 
 
@@ -153,6 +169,47 @@ def steps_per_second(env: EnvBase, steps: int, warmup: int) -> tuple[float, floa
     if env.device.type == "cuda":
         torch.cuda.synchronize(env.device)
     return env.batch_size.numel() * steps / (time.perf_counter() - t0), warm
+
+
+def gym_steps_per_second(venv, steps: int, warmup: int, seed: int) -> tuple[float, float]:
+    """:func:`steps_per_second` of a Gymnasium ``VectorEnv``: uniformly random numpy actions
+    (drawn before the clock starts; a table the size of the warm-up plus timed steps),
+    autoreset included; env-steps/s and the warm-up seconds."""
+    n = venv.num_envs
+    shape = (warmup + steps, *venv.action_space.shape)
+    actions = np.random.default_rng(seed).uniform(-1.0, 1.0, shape).astype(np.float32)
+    t0 = time.perf_counter()
+    venv.reset(seed=seed)
+    for a in actions[:warmup]:
+        venv.step(a)
+    warm = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for a in actions[warmup:]:
+        venv.step(a)
+    if venv.unwrapped.env.device.type == "cuda":
+        torch.cuda.synchronize(venv.unwrapped.env.device)
+    return n * steps / (time.perf_counter() - t0), warm
+
+
+def _make_gym(n: int, compile: bool, device: str, seed: int):
+    """``gymnasium.make_vec`` of the default task's id: ``n`` trucks, numpy arrays on CPU
+    (torch tensors on another device), the same config as :func:`_make_env`."""
+    import gymnasium
+
+    import truckrl.gym
+    from truckrl.tasks.config import DEFAULT_TASK
+
+    if compile:
+        torch._dynamo.reset()  # as _make_env
+    tensors = torch.device(device).type != "cpu"
+    return gymnasium.make_vec(
+        truckrl.gym.env_id(DEFAULT_TASK),
+        num_envs=n,
+        seed=seed,
+        device=device,
+        tensors=tensors,
+        compile=compile,
+    )
 
 
 def run(args: EnvBenchConfig) -> dict:
@@ -243,8 +300,22 @@ def _throughput_rows(args: EnvBenchConfig, compiled: bool, rows: list[dict]) -> 
     ``ParallelEnv`` at each total of ``parallel_envs`` (split over ``workers``)."""
     for n in args.envs:
         env = _make_env(n, compiled, args.device, args.seed)
-        sps, warm = steps_per_second(env, args.steps, args.warmup)
-        _record(rows, "batched", 1, n, compiled, sps, warm)
+        if not args.gym:
+            sps, warm = steps_per_second(env, args.steps, args.warmup)
+            _record(rows, "batched", 1, n, compiled, sps, warm)
+            continue
+        venv = _make_gym(n, compiled, args.device, args.seed)
+        torchrl_runs, gym_runs = [], []
+        for _ in range(args.repeats):  # alternating: both rows see the same machine load
+            torchrl_runs.append(steps_per_second(env, args.steps, args.warmup))
+            gym_runs.append(gym_steps_per_second(venv, args.steps, args.warmup, args.seed))
+        venv.close()
+        for layout, runs in (("batched", torchrl_runs), ("gym", gym_runs)):
+            sps = statistics.median(r[0] for r in runs)
+            _record(rows, layout, 1, n, compiled, sps, runs[0][1])
+            rows[-1]["runs"] = [r[0] for r in runs]
+        rows[-1]["x torchrl"] = rows[-1]["steps/s"] / rows[-2]["steps/s"]
+        print(f"  gym / torchrl at N={n}: {rows[-1]['x torchrl']:.3f}", flush=True)
     for total in args.parallel_envs:
         per = max(1, total // args.workers)
         sps, warm = _parallel_steps_per_second(args, args.workers, per, compiled)
@@ -256,7 +327,12 @@ def _summarize(
 ) -> dict:
     """Table, best row against the targets, printed lines and the JSON record; returns the
     summary."""
-    table = print_table("TruckEnv env-steps/s (random policy, resets included)", rows)
+    columns = None
+    if args.gym:
+        for r in rows:
+            r.setdefault("x torchrl", None)
+        columns = [c for c in rows[0] if c != "runs"]
+    table = print_table("TruckEnv env-steps/s (random policy, resets included)", rows, columns)
     best = max(rows, key=lambda r: r["steps/s"])
     summary = {
         "best": best,
