@@ -1,15 +1,22 @@
-"""``truckrl eval``: score a checkpoint on fixed seeded scenes with the mean action.
+"""``truckrl eval``: score a policy on fixed seeded scenes with its mean action.
 
     truckrl eval checkpoint=outputs/DATE/TIME difficulty=2 episodes=200
+    truckrl eval policy=onnx:policy.onnx episodes=200       # an exported model, by onnxruntime
+    truckrl eval policy=mypkg.drivers:make task=dock        # a user's factory
 
-Runs one deterministic episode in each of ``episodes`` scenes drawn from ``seed`` (the same seed
-gives the same scenes, so checkpoints are compared on identical tasks) at ``difficulty`` (default:
-the checkpoint's curriculum difficulty), with the env config saved in the checkpoint. Prints the
+``policy=`` names what plays (:mod:`truckrl.rl.policy_specs`: ``checkpoint:PATH``,
+``pretrained[:TASK]``, ``onnx:FILE``, ``planner``, ``module:function``); ``checkpoint=PATH`` is
+short for ``policy=checkpoint:PATH``. Runs one deterministic episode in each of ``episodes``
+scenes drawn from ``seed`` (the same seed gives the same scenes, so policies are compared on
+identical tasks) at ``difficulty`` (default: the policy's curriculum difficulty, else 6), with the
+policy's env config (a checkpoint's, an ONNX export's model card; else the default env of
+``task``), changed by ``env.*`` overrides. Prints the
 outcome rates and mean / p95 final errors, then the same per scene category (intersection: route,
 turn angle split left / right, crossing angle, trailer length, road width, goal distance; other
 tasks: their ``category_dims``; see :mod:`truckrl.evaluation.categories`), then everything as one line of JSON (the category rows under
 ``"categories"``), and writes that JSON to ``output``: by default
-``<run dir of the checkpoint>/eval/<difficulty>-<seed>.json``, beside the evaluated run. The
+``<run dir of the checkpoint>/eval/<difficulty>-<seed>.json``, beside the evaluated run (other
+policies: ``outputs/eval/<kind>-<name>-<difficulty>-<seed>.json``). The
 output location is checked before any episode runs; if the write still fails at the end, the
 results are printed first and the error after them. Fields: ``EvaluateConfig`` in
 ``truckrl/config/schemas.py``.
@@ -31,6 +38,7 @@ from truckrl.cli import check_writable, hydra_entry, provenance
 
 if TYPE_CHECKING:
     from truckrl.config.schemas import EvaluateConfig
+    from truckrl.rl.policy_specs import PolicySpec
     from truckrl.tasks import Quantity
 
 #: Folder of a run dir that default evaluation outputs go to.
@@ -68,8 +76,9 @@ def write_json(path: Path, data: dict) -> None:
         raise
 
 
-#: Difficulty the planner is scored at when neither ``difficulty`` nor a checkpoint says (the
-#: paper's final curriculum level).
+#: Difficulty a policy without one of its own (the planner without a checkpoint,
+#: ``module:function``, an ONNX file without model card) is scored at when ``difficulty`` is
+#: null: the paper's final curriculum level.
 PLANNER_DIFFICULTY = 6.0
 
 
@@ -77,17 +86,20 @@ def evaluate(ec: EvaluateConfig) -> dict:
     """Load, check the output, run, summarise, print and write; return the JSON-ready result.
 
     With ``policy=planner`` the CEM planner (:mod:`truckrl.planning`) plays the same scenes
-    instead of the checkpoint's policy: with the checkpoint's env config and difficulty when one
-    is given (a side-by-side comparison), else the default env at difficulty 6; its JSON goes to
+    instead of a policy: with the checkpoint's env config and difficulty when one is given (a
+    side-by-side comparison), else the default env of ``task`` at difficulty 6; its JSON goes to
     ``planner-<difficulty>-<seed>.json`` (beside the run, or under ``outputs/eval/``).
 
     Raises:
         CheckpointError: the checkpoint cannot be used (before any episode runs).
-        ConfigError: the output cannot be written: before any episode runs when the check finds
-            it, or after printing the results when the final write fails.
+        ConfigError: a policy spec that cannot be used (before any episode runs); the output
+            cannot be written: before any episode runs when the check finds it, or after
+            printing the results when the final write fails.
     """
     from truckrl.rl.checkpoint import resolve_checkpoint
+    from truckrl.rl.policy_specs import spec_of
 
+    spec = spec_of(ec.policy, ec.checkpoint)
     if ec.checkpoint:
         resolve_checkpoint(ec.checkpoint)  # a wrong path is reported before torchrl loads
 
@@ -99,10 +111,10 @@ def evaluate(ec: EvaluateConfig) -> dict:
     )
     from truckrl.evaluation.rollout import summarize
 
-    if ec.policy == "planner":
+    if spec.kind == "planner":
         summary_head, results, (tol_pos, tol_deg), errors, output, task = _run_planner(ec)
     else:
-        summary_head, results, (tol_pos, tol_deg), errors, output, task = _run_checkpoint(ec)
+        summary_head, results, (tol_pos, tol_deg), errors, output, task = _run_policy(ec, spec)
     bins = task_bins(task, results)
     summary = {
         "task": task,
@@ -131,31 +143,41 @@ def evaluate(ec: EvaluateConfig) -> dict:
     return {**summary, "output": str(output)}
 
 
-def _run_checkpoint(ec: EvaluateConfig):
-    """The checkpoint's mean action on the scenes: ``(head, results, tolerance, errors, output,
+def _run_policy(ec: EvaluateConfig, spec: PolicySpec):
+    """The policy's mean action on the scenes: ``(head, results, tolerance, errors, output,
     task name)``."""
     from truckrl.evaluation.rollout import evaluate_policy
-    from truckrl.rl.policy import load_policy
+    from truckrl.rl.policy_specs import default_env, resolve_policy
     from truckrl.tasks.config import flat_overrides, with_env_overrides
 
-    policy = load_policy(ec.checkpoint, ec.device)
-    env_cfg = with_env_overrides(policy.env_config, ec.env, fixed=True)
-    difficulty = policy.difficulty if ec.difficulty is None else ec.difficulty
-    output = (
-        Path(ec.output) if ec.output else default_output(policy.path, difficulty, ec.seed, ec.env)
-    )
+    policy = resolve_policy(spec, ec.device, default_env(ec.task))
+    env_cfg = with_env_overrides(policy.env_config, ec.env, fixed=policy.fixed_env)
+    difficulty = ec.difficulty
+    if difficulty is None:
+        difficulty = PLANNER_DIFFICULTY if policy.difficulty is None else policy.difficulty
+    if ec.output:
+        output = Path(ec.output)
+    elif spec.kind == "checkpoint":
+        output = default_output(policy.path, difficulty, ec.seed, ec.env)
+    else:
+        name = f"{spec.kind}-{spec.name}-{difficulty:g}-{ec.seed}{_tag(ec.env)}.json"
+        output = Path("outputs") / EVAL_DIR / name
     check_writable(output, "output")
     results, tolerance, errors = evaluate_policy(
         policy.actor, env_cfg, difficulty, ec.episodes, ec.seed, ec.device
     )
-    head = {
-        "checkpoint": str(policy.path),
-        "policy": "checkpoint",
-        "iteration": int(policy.counters["iteration"]),
-        "frames": int(policy.counters["frames"]),
-        "difficulty": difficulty,
-        "env_overrides": flat_overrides(ec.env),
-    }
+    head: dict = {"policy": spec.kind, "policy_spec": spec.text}
+    if spec.kind == "checkpoint":
+        head |= {
+            "checkpoint": str(policy.path),
+            "iteration": int(policy.counters["iteration"]),
+            "frames": int(policy.counters["frames"]),
+        }
+    else:
+        head["checkpoint"] = None
+        if spec.kind == "onnx":
+            head["onnx"] = str(policy.path)
+    head |= {"difficulty": difficulty, "env_overrides": flat_overrides(ec.env)}
     return head, results, tolerance, errors, output, env_cfg.task.name
 
 
@@ -172,7 +194,7 @@ def _run_planner(ec: EvaluateConfig):
     import time
 
     from truckrl.planning import plan_episodes
-    from truckrl.tasks import EnvConfig
+    from truckrl.rl.policy_specs import default_env
     from truckrl.tasks.config import flat_overrides, with_env_overrides
 
     if ec.checkpoint:
@@ -184,7 +206,7 @@ def _run_planner(ec: EvaluateConfig):
         output = default_output(path, difficulty, ec.seed, ec.env)
         output = output.with_name(f"planner-{output.name}")
     else:
-        env_cfg, path = EnvConfig(), None
+        env_cfg, path = default_env(ec.task), None
         difficulty = PLANNER_DIFFICULTY if ec.difficulty is None else ec.difficulty
         name = f"planner-{difficulty:g}-{ec.seed}{_tag(ec.env)}.json"
         output = Path("outputs") / EVAL_DIR / name
@@ -198,6 +220,7 @@ def _run_planner(ec: EvaluateConfig):
     head = {
         "checkpoint": str(path) if path else None,
         "policy": "planner",
+        "policy_spec": "planner",
         "difficulty": difficulty,
         "planner_seconds": time.perf_counter() - t0,
         "planner_rollouts": int(results["rollouts"]),

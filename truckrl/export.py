@@ -16,9 +16,22 @@ checkpoint's control mode, the step time, and where it came from. ONNX keeps it 
 TorchScript in the extra file ``truckrl.json`` (``torch.jit.load(path, _extra_files={"truckrl.json":
 ""})``).
 
-ONNX needs the ``export`` extra (``pip install 'truckrl[export]'``: onnx, onnxscript; onnxruntime to
-run it). Fields: :class:`ExportConfig`. A missing or unusable checkpoint, or a missing
-exporter, prints one line and exits with code 2.
+The card also holds the checkpoint's full env config (``env_config``) and curriculum difficulty,
+so ``truckrl eval policy=onnx:FILE`` and ``truckrl play policy=onnx:FILE`` drive the file in the
+same env (:mod:`truckrl.rl.policy_specs`).
+
+Before reporting success the export verifies what it wrote (:func:`verify`): the ONNX checker
+(``onnx.checker.check_model``, full check), the file's input and output names and shapes against
+the env, and a parity check: onnxruntime (TorchScript: ``torch.jit.load``) on a batch of real
+observations of the env (:func:`verification_inputs`: :data:`VERIFY_TRUCKS` trucks over
+:data:`VERIFY_STEPS` steps of the policy) must give the torch policy's mean action within
+:data:`VERIFY_ATOL`. The file is written under a temporary name and renamed to ``out`` only once
+verified: a file that fails is removed, an older file at ``out`` stays, and the command prints
+one line ``error: ...`` and exits with code 1 (a failed export, not a bad input).
+
+ONNX needs the ``export`` extra (``pip install 'truckrl[export]'``: onnx, onnxscript, and
+onnxruntime to verify and run it). Fields: :class:`ExportConfig`. A missing or unusable
+checkpoint, or a missing exporter package, prints one line and exits with code 2.
 """
 
 from __future__ import annotations
@@ -29,10 +42,14 @@ if __name__ == "__main__":  # answer --help before the imports below load torch
     exit_on_help("export")
 
 import contextlib
+import dataclasses
 import importlib.util
 import json
 import logging
 import math
+import os
+import sys
+import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,8 +62,13 @@ from torch import Tensor, nn
 from truckrl.cli import hydra_entry
 from truckrl.config.fields import ConfigError, param, validate
 from truckrl.config.schemas import structured
+from truckrl.rl.checkpoint import _file_mode as file_mode  # mode under the umask
 from truckrl.rl.network import GaussianHead, TwoBranchTrunk
 from truckrl.rl.policy import LoadedPolicy, load_policy
+
+# CARD_KEY: the key of the JSON model card (ONNX metadata key; TorchScript extra file
+# ``truckrl.json``), the one truckrl.rl.policy_specs reads
+from truckrl.rl.policy_specs import CARD_ENV, CARD_KEY, check_onnx_io, onnx_session
 from truckrl.rl.session import run_dir_of
 from truckrl.sim.control import commanded
 from truckrl.sim.lidar import beam_angles
@@ -56,8 +78,18 @@ from truckrl.tasks.config import SENSOR_SCALE
 
 FORMATS = ("onnx", "torchscript")
 SUFFIX = {"onnx": ".onnx", "torchscript": ".pt"}
-#: Key of the JSON model card (ONNX metadata key; TorchScript extra file ``truckrl.json``).
-CARD_KEY = "truckrl"
+#: Largest ``|exported - torch|`` action difference the verification accepts (float32 kernels
+#: of two runtimes differ by ~1e-6 on these small networks; a wrong weight or op by far more).
+VERIFY_ATOL = 1e-4
+#: Trucks and policy steps whose observations the parity check feeds both models.
+VERIFY_TRUCKS = 64
+VERIFY_STEPS = 10
+#: Exit code of a written file that fails its verification (bad input is 2).
+VERIFY_EXIT = 1
+
+
+class ExportVerificationError(RuntimeError):
+    """The written file does not pass the ONNX checker or does not compute the policy's action."""
 
 
 @dataclass
@@ -181,6 +213,7 @@ def model_card(loaded: LoadedPolicy, fmt: str) -> dict[str, Any]:
         },
         "dt_s": cfg.dt,
         "task": cfg.task.name,
+        CARD_ENV: dataclasses.asdict(cfg),
         "difficulty": loaded.difficulty,
         "checkpoint": str(loaded.path),
         "counters": loaded.counters,
@@ -261,20 +294,106 @@ def default_out(loaded: LoadedPolicy, fmt: str) -> Path:
     return run_dir / "export" / f"policy{SUFFIX[fmt]}"
 
 
-@torch.no_grad()
+def verification_inputs(loaded: LoadedPolicy) -> tuple[Tensor, Tensor]:
+    """Real observations ``([M, F], [M, R])``: :data:`VERIFY_TRUCKS` trucks of the checkpoint's env
+    (seed 0, its curriculum difficulty) at reset and after each of :data:`VERIFY_STEPS` steps of
+    the policy's mean action, ``M = VERIFY_TRUCKS * (VERIFY_STEPS + 1)``. Zeros or random inputs
+    would miss the ranges a controller sees."""
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from truckrl.env import TruckEnv
+
+    cfg = dataclasses.replace(loaded.env_config, compile=False)
+    env = TruckEnv(num_envs=VERIFY_TRUCKS, config=cfg, seed=0)
+    env.set_difficulty(loaded.difficulty)
+    td = env.reset()
+    obs, lidar = [td["observation"]], [td["lidar"]]
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        for _ in range(VERIFY_STEPS):
+            td = env.step(loaded.actor(td))["next"]  # ended trucks reset automatically
+            obs.append(td["observation"])
+            lidar.append(td["lidar"])
+    env.close()
+    return torch.cat(obs).float(), torch.cat(lidar).float()
+
+
+def verify(
+    path: Path, fmt: str, model: DeterministicActor, loaded: LoadedPolicy
+) -> tuple[float, int]:
+    """Check the written file (module docstring); return ``(max |action difference|, rows)``.
+
+    Raises:
+        ExportVerificationError: the ONNX checker rejects the file, its inputs/outputs do not fit
+            the env, or its actions differ from the torch policy's by more than
+            :data:`VERIFY_ATOL` (or are not finite).
+    """
+    obs, lidar = verification_inputs(loaded)
+    want = model(obs, lidar).numpy()
+    if fmt == "onnx":
+        import onnx
+
+        try:
+            onnx.checker.check_model(str(path), full_check=True)
+            session = onnx_session(path, "export")
+            check_onnx_io(session, loaded.env_config, "export")
+        except (onnx.checker.ValidationError, ConfigError) as e:
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise ExportVerificationError(f"the ONNX check failed: {first}") from None
+        (got,) = session.run(["action"], {"observation": obs.numpy(), "lidar": lidar.numpy()})
+        runtime = "onnxruntime"
+    else:
+        got = torch.jit.load(str(path))(obs, lidar).numpy()
+        runtime = "torch.jit.load"
+    diff = float(abs(got - want).max()) if got.shape == want.shape else math.inf
+    if not diff <= VERIFY_ATOL:  # NaN fails too
+        raise ExportVerificationError(
+            f"{runtime}'s actions differ from the torch policy's by up to {diff:.3g} on "
+            f"{len(obs)} real observations (tolerance {VERIFY_ATOL:g})"
+        )
+    return diff, len(obs)
+
+
 def export(cfg: ExportConfig) -> Path:
-    """Load ``cfg.checkpoint`` and write its deterministic actor; returns the file written."""
+    """Load ``cfg.checkpoint``, write its deterministic actor and verify the file
+    (:func:`export_verified`); returns the file written."""
+    return export_verified(cfg)[0]
+
+
+@torch.no_grad()
+def export_verified(cfg: ExportConfig) -> tuple[Path, float, int]:
+    """Load ``cfg.checkpoint``, write its deterministic actor and verify the file
+    (:func:`verify`); returns ``(file written, max |action difference|, observations)``.
+
+    Raises:
+        ConfigError: a missing exporter or onnxruntime (before anything is written).
+        ExportVerificationError: the file failed its verification; nothing is left at ``out``
+            from this export (an older file there is kept).
+    """
+    if cfg.format == "onnx" and importlib.util.find_spec("onnxruntime") is None:
+        raise ConfigError(
+            "format=onnx needs onnxruntime to verify the file: pip install 'truckrl[export]' "
+            "(or use format=torchscript)"
+        )
     loaded = load_policy(cfg.checkpoint, "cpu")
     model = DeterministicActor(loaded.actor).eval()
     out = Path(cfg.out) if cfg.out else default_out(loaded, cfg.format)
     out.parent.mkdir(parents=True, exist_ok=True)
     card = model_card(loaded, cfg.format)
     inputs = example_inputs(loaded)
-    if cfg.format == "onnx":
-        export_onnx(model, inputs, card, out, cfg.opset)
-    else:
-        export_torchscript(model, inputs, card, out)
-    return out
+    fd, name = tempfile.mkstemp(dir=out.parent, prefix=f".{out.stem}.", suffix=out.suffix)
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        if cfg.format == "onnx":
+            export_onnx(model, inputs, card, tmp, cfg.opset)
+        else:
+            export_torchscript(model, inputs, card, tmp)
+        diff, rows = verify(tmp, cfg.format, model, loaded)
+        os.chmod(tmp, file_mode())  # mkstemp's 0o600 -> what a plain open() would have made
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return out, diff, rows
 
 
 register_schema()
@@ -282,8 +401,16 @@ register_schema()
 
 @hydra_entry("export", ExportConfig)
 def main(cfg: ExportConfig, raw: DictConfig) -> None:
-    out = export(cfg)
+    try:
+        out, diff, rows = export_verified(cfg)
+    except ExportVerificationError as e:
+        sys.stdout.flush()
+        print(f"error: export not written, verification failed: {e}", file=sys.stderr, flush=True)
+        sys.exit(VERIFY_EXIT)
     print(f"export: {out} ({cfg.format}; observation, lidar -> action = raw policy mean)")
+    check = "onnx checker, onnxruntime" if cfg.format == "onnx" else "torch.jit.load"
+    print(f"verified: {check}: max |action - torch policy's| = {diff:.2g} on {rows} real "
+          f"observations (tolerance {VERIFY_ATOL:g})")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -3,25 +3,34 @@
     truckrl play                                   # keyboard, paper controls
     truckrl play control=speed_angle seed=3 difficulty=2
     truckrl play checkpoint=outputs/DATE/TIME      # watch a policy (M: take over)
+    truckrl play policy=onnx:policy.onnx           # an exported model, by onnxruntime
+    truckrl play policy=planner seed=3             # the CEM planner's plan of each scene
+    truckrl play policy=mypkg.drivers:make task=dock   # a user's factory
     truckrl play headless=true checkpoint=<run> record=run.mp4   # no window: to video
     truckrl play headless=true actions=docs/play_keys.txt strip=docs/play_strip.png
 
 One frame loop (:func:`truckrl.viewer.runner.run_loop` over a :class:`~truckrl.viewer.runner.Runner`) serves every way of driving: an *action
 source* turns the current observation and the held keys into the env action; the keyboard
-(:class:`truckrl.viz.keyboard.KeyMapper`), a policy (mean action of a checkpoint), a replayed
-``.npy`` action array and a random policy are interchangeable sources. The env is the training
+(:class:`truckrl.viz.keyboard.KeyMapper`), a policy (its mean action), the planner
+(:class:`PlannerSource`), a replayed ``.npy`` action array and a random policy are
+interchangeable sources. The env is the training
 ``TruckEnv`` (one truck, same config groups, the same ``[-1, 1]`` action clamp and non-finite
 guard) and every frame is its ``render_frame`` plus a HUD panel.
 
 Inputs: a pygame window (:mod:`truckrl.viz.window`) or, with ``headless=true`` (pygame not
 needed), a scripted key file (``actions=keys.txt``, format in :mod:`truckrl.viz.keyboard`) or
 none. ``actions=file.npy`` replays an ``[F, 2]`` float array of actions instead. Headless with
-neither a checkpoint nor actions drives one episode with uniform random actions.
+neither a policy nor actions drives one episode with uniform random actions.
 
-With a checkpoint, the env and control config come from the checkpoint (the policy was trained
-for them); ``seed``, ``difficulty`` (default: the checkpoint's curriculum difficulty) and
-``device`` come from the command line. Fields: ``PlayConfig`` in ``truckrl/config/schemas.py``. Exit code 2 with a one-line
-message for a bad config, a missing or corrupt checkpoint, or a bad actions file.
+``policy=`` names what drives (:mod:`truckrl.rl.policy_specs`: ``checkpoint:PATH``,
+``pretrained[:TASK]``, ``onnx:FILE``, ``planner``, ``module:function``; ``checkpoint=PATH`` is
+short for ``policy=checkpoint:PATH``). A checkpoint's or an ONNX export's env and control config
+are used (the policy was trained for them); a ``module:function`` policy and the planner drive
+the env of the command line (``task=``, ``control=``, ``env.*``), the planner a checkpoint's
+when ``checkpoint=`` is given too. ``seed``, ``difficulty`` (default: the policy's curriculum
+difficulty) and ``device`` come from the command line. Fields: ``PlayConfig`` in
+``truckrl/config/schemas.py``. Exit code 2 with a one-line message for a bad config, a policy
+spec that cannot be used, a missing or corrupt checkpoint, or a bad actions file.
 """
 
 from __future__ import annotations
@@ -70,6 +79,49 @@ def load_actions(path: str | os.PathLike) -> np.ndarray | list[KeyInput]:
     return parse_key_script(p.read_text(), str(p))
 
 
+def planner_config():
+    """The planner's settings for ``policy=planner``: the defaults of
+    :class:`~truckrl.planning.PlannerConfig` (the baseline of docs/planner.md), as ``truckrl eval
+    policy=planner`` plans."""
+    from truckrl.planning import PlannerConfig
+
+    return PlannerConfig()
+
+
+class PlannerSource:
+    """The CEM planner as an action source: it plans the episode from the truck's state
+    (:func:`truckrl.planning.plan_states`, at the env's current difficulty) and replays the
+    plan's actions open loop, one per step; zeros past the plan's end.
+
+    It plans again whenever the env's step counter is not the one the plan expects next: at a
+    new scene, a restart, or after manual driving took over. Planning takes a moment (one
+    scene's CEM search); the frame loop waits for it.
+    """
+
+    def __init__(self, env: Any, config: Any) -> None:
+        self.env, self.config = env, config
+        self.plan = None  # [T, 2] actions from step `start` on
+        self.start = 0
+        self.next = -1  # the step counter the plan expects at the next call
+
+    def __call__(self, td: Any, held: frozenset[str]) -> Any:
+        import torch
+
+        from truckrl.planning import plan_states
+
+        state = self.env.get_state()
+        k = int(state["step_count"][0])
+        if self.plan is None or k != self.next:
+            d = self.env.get_difficulty()
+            results, _, _ = plan_states(self.env.config, state, d, self.config, self.env.device)
+            self.plan, self.start = results["actions"][0].to(self.env.device), k
+        self.next = k + 1
+        i = k - self.start
+        if i >= len(self.plan):
+            return torch.zeros(1, 2, device=self.env.device)
+        return self.plan[i : i + 1]
+
+
 # ---------------------------------------------------------------------------------- entry
 def check_output(field: str, path: str | None) -> None:
     """Check an output file (``record=``, ``strip=``) can be written, before anything runs.
@@ -96,7 +148,7 @@ def build_runner(pc: PlayConfig) -> tuple[Runner, Any, float, str]:
     import numpy as np
 
     from truckrl.env import TruckEnv
-    from truckrl.rl.policy import load_policy
+    from truckrl.rl.policy_specs import parse_policy_spec, resolve_policy, spec_of
     from truckrl.viewer.runner import (
         ArraySource,
         KeyboardSource,
@@ -110,12 +162,22 @@ def build_runner(pc: PlayConfig) -> tuple[Runner, Any, float, str]:
     env_cfg = pc.env
     difficulty = pc.difficulty
     what = "keyboard"
-    if pc.checkpoint:
-        loaded = load_policy(pc.checkpoint, pc.device)
-        actor, env_cfg = loaded.actor, loaded.env_config
-        ckpt_difficulty, path = loaded.difficulty, loaded.path
-        difficulty = ckpt_difficulty if difficulty is None else difficulty
-        what = f"policy {path} (env and control config from the checkpoint)"
+    spec = spec_of(pc.policy, pc.checkpoint)
+    planner = spec is not None and spec.kind == "planner"
+    if planner and pc.checkpoint:  # the planner in a checkpoint's env
+        loaded = resolve_policy(parse_policy_spec(f"checkpoint:{pc.checkpoint}"), pc.device)
+        env_cfg, own_difficulty = loaded.env_config, loaded.difficulty
+        what = f"the CEM planner (env and control config from {loaded.path})"
+    elif planner:
+        own_difficulty, what = None, "the CEM planner"
+    elif spec is not None:
+        loaded = resolve_policy(spec, pc.device, env_cfg)
+        actor, env_cfg, own_difficulty = loaded.actor, loaded.env_config, loaded.difficulty
+        where = f"{loaded.path} " if loaded.path else ""
+        what = f"policy {where}({spec.text}"
+        what += "; env and control config from it)" if loaded.fixed_env else ")"
+    if spec is not None:
+        difficulty = own_difficulty if difficulty is None else difficulty
     script = load_actions(pc.actions) if pc.actions else None
 
     # one truck: torch.compile (the fast training preset's env.compile) would not pay for itself
@@ -129,12 +191,15 @@ def build_runner(pc: PlayConfig) -> tuple[Runner, Any, float, str]:
     if actor is not None:
         sources["policy"] = PolicySource(actor)
         mode = "policy"
+    elif planner:
+        sources["policy"] = PlannerSource(env, planner_config())
+        mode = "policy"
     if isinstance(script, np.ndarray):
         sources["replay"] = ArraySource(script, pc.device)
         mode, what = "replay", f"actions {pc.actions}"
     elif script is not None:
         inputs, what = ScriptedKeys(script), f"key script {pc.actions}"
-    elif pc.headless and actor is None:
+    elif pc.headless and mode == "manual":
         sources["random"] = RandomSource(pc.seed, pc.device)
         mode, what = "random", "random actions"
     fps = pc.fps if pc.fps is not None else 1.0 / env_cfg.dt  # default: real time

@@ -292,41 +292,54 @@ class TrainConfig:
 
 @dataclass
 class EvaluateConfig:
-    """``truckrl eval``: deterministic evaluation of a checkpoint."""
+    """``truckrl eval``: deterministic evaluation of a policy (``policy=``, :mod:`truckrl.rl.policy_specs`)."""
 
-    checkpoint: str | None = param(
-        None, doc="checkpoint file or run dir (required with policy=checkpoint)"
-    )
     policy: str = param(
         "checkpoint",
-        choices=("checkpoint", "planner"),
-        doc="checkpoint: its mean action; planner: the CEM planner baseline on the same scenes",
+        doc="what plays: checkpoint:PATH | pretrained[:TASK] | onnx:FILE | planner | "
+        "module:function (checkpoint: the checkpoint field)",
+    )
+    checkpoint: str | None = param(
+        None,
+        doc="checkpoint file, run dir or pretrained[:TASK]: short for policy=checkpoint:PATH; "
+        "with policy=planner, whose env config and scenes the planner gets",
+    )
+    task: str | None = param(
+        None,
+        doc="task of a policy that brings no env config (module:function, planner without "
+        "checkpoint, an ONNX file without truckrl metadata); null: the default task",
     )
     difficulty: float | None = param(
         None,
         lo=0.0,
         hi=MAX_DIFFICULTY,
-        doc="null: the checkpoint's curriculum difficulty (planner without checkpoint: 6)",
+        doc="null: the policy's curriculum difficulty (checkpoint, ONNX export), else 6",
     )
     episodes: int = param(100, lo=1, hi=10_000_000, doc="one episode per seeded scene")
     seed: int = param(12345, lo=0, hi=SEED_MAX, doc="scene seed: same seed, same scenes")
     device: str = param("cpu", doc="env and policy device")
     output: str | None = param(
-        None, doc="JSON file; null: <run dir of the checkpoint>/eval/<difficulty>-<seed>.json"
+        None,
+        doc="JSON file; null: <run dir of the checkpoint>/eval/<difficulty>-<seed>.json "
+        "(other policies: outputs/eval/<kind>-<name>-<difficulty>-<seed>.json)",
     )
     env: dict[str, Any] = param(
         {},
-        doc="the checkpoint's env config changed for this evaluation only "
+        doc="the policy's env config changed for this evaluation only "
         "(env.task.scene.crossing_prob=0.7); not the task or the beam count",
     )
 
     def __post_init__(self) -> None:
         validate(self)
         check_device("device", self.device)
-        if not self.checkpoint and self.policy == "checkpoint":
+        from truckrl.rl.policy_specs import default_env, spec_of
+
+        if spec_of(self.policy, self.checkpoint) is None:
             raise ConfigError(
-                "checkpoint is required: checkpoint=<file or run dir> (or policy=planner)"
+                "checkpoint is required: checkpoint=<file or run dir> (or policy=SPEC: "
+                "pretrained, onnx:FILE, planner, module:function)"
             )
+        default_env(self.task)  # a task name that is not a task folder
 
 
 ON_DONE = ("new", "same", "wait")
@@ -339,7 +352,14 @@ class PlayConfig:
     seed: int = param(0, lo=0, hi=SEED_MAX, doc="scene seed (as TruckEnv(seed=...))")
     device: str = param("cpu", doc="env and policy device")
     threads: int = param(1, lo=1, hi=1024, doc="torch CPU threads (one truck gains nothing more)")
-    checkpoint: str | None = param(None, doc="checkpoint file or run dir: watch its policy")
+    policy: str | None = param(
+        None,
+        doc="watch a policy: checkpoint:PATH | pretrained[:TASK] | onnx:FILE | planner | "
+        "module:function (null: the keyboard, or checkpoint)",
+    )
+    checkpoint: str | None = param(
+        None, doc="checkpoint file, run dir or pretrained[:TASK]: short for policy=checkpoint:PATH"
+    )
     actions: str | None = param(None, doc="key script (text) or .npy [F, 2] action array")
     headless: bool = param(False, doc="no window; stops after `episodes` (default 1)")
     record: str | None = param(None, doc="mp4 file: every frame shown (view + HUD)")
@@ -368,8 +388,11 @@ class PlayConfig:
     def __post_init__(self) -> None:
         validate(self)
         check_device("device", self.device)
-        if self.checkpoint and self.actions:
-            raise ConfigError("give checkpoint or actions, not both")
+        from truckrl.rl.policy_specs import spec_of
+
+        spec = spec_of(self.policy, self.checkpoint)
+        if spec is not None and self.actions:
+            raise ConfigError("give policy (or checkpoint) or actions, not both")
 
 
 def check_device(name: str, device: str) -> None:

@@ -3,21 +3,76 @@
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
 from collections.abc import Callable
+from typing import Any
 
+import numpy as np
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import Tensor
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from truckrl.config.fields import ConfigError
 from truckrl.env import TruckEnv
 from truckrl.sim.vehicle import trailer_length
 from truckrl.tasks import OUTCOMES, EnvConfig, Quantity, shown
 
-#: What :func:`evaluate_policy` runs: a TorchRL actor, or any ``td -> td`` that sets "action".
-Policy = TensorDictModuleBase | Callable[[TensorDictBase], TensorDictBase]
+#: What :func:`evaluate_policy` runs: a TorchRL actor, or any callable of :func:`as_policy`'s two
+#: conventions (``td -> td`` setting "action", or ``obs -> action``).
+Policy = TensorDictModuleBase | Callable[..., Any]
+
+
+def as_policy(policy: Policy) -> Callable[[TensorDictBase], TensorDictBase]:
+    """Any policy as ``td [N] -> td [N]`` with "action" ``[N, 2]``.
+
+    A TorchRL module is returned as it is. Any other callable is called by its number of
+    required positional parameters, and what it returns decides the rest:
+
+    - one: ``policy(td)`` with the env's tensordict ``[N]`` ("observation", "lidar", the flags);
+      it returns a tensordict holding "action" (``td -> td``), or the action itself;
+    - two: ``policy(observation [N, F], lidar [N, R])``, the exported model's inputs
+      (``obs -> action``); it returns the action.
+
+    An action is a tensor or array ``[N, 2]`` (any float dtype), moved to the env's device as
+    float32; the env clamps it to ``[-1, 1]``. Two conventions because a TorchRL policy reads
+    a tensordict while a controller written outside truckrl, or an exported model, reads arrays.
+
+    Raises:
+        ConfigError: (on call) an action that is not ``[N, 2]``.
+    """
+    if isinstance(policy, TensorDictModuleBase):
+        return policy
+    arrays = _required_positional(policy) >= 2
+
+    def run(td: TensorDictBase) -> TensorDictBase:
+        out = policy(td["observation"], td["lidar"]) if arrays else policy(td)
+        if isinstance(out, TensorDictBase):
+            return out
+        return td.set("action", _action(out, td))
+
+    return run
+
+
+def _required_positional(f: Callable) -> int:
+    """How many positional parameters ``f`` requires (1 when it has no signature)."""
+    try:
+        params = inspect.signature(f).parameters.values()
+    except (TypeError, ValueError):
+        return 1
+    kinds = (inspect.Parameter.POSITIONAL_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
+    return sum(p.kind in kinds and p.default is inspect.Parameter.empty for p in params)
+
+
+def _action(a: Any, td: TensorDictBase) -> Tensor:
+    """A returned action as float32 ``[N, 2]`` on the env's device."""
+    a = torch.from_numpy(np.asarray(a)) if not isinstance(a, Tensor) else a
+    n = td.batch_size[0]
+    if tuple(a.shape) != (n, 2):
+        raise ConfigError(f"the policy returned an action of shape {list(a.shape)}, not [{n}, 2]")
+    return a.to(td.device, torch.float32)
 
 
 #: State entries that hold a task's per-episode scene metadata ``{key: [N]}``: ``route`` (the
@@ -43,10 +98,20 @@ def evaluate_policy(
     Args:
         actor: the policy. A TorchRL actor (``TensorDictModule``) runs under
             ``ExplorationType.DETERMINISTIC``, i.e. with its mean action. Any other callable
-            ``td -> td`` works too (a scripted or planning controller): it gets the env's
-            tensordict ``[E]`` ("observation", "lidar", the flags...) and must return a
-            tensordict ``[E]`` with "action" ``[E, 2]`` in [-1, 1], as ``TruckEnv.step`` takes.
-            It runs under ``torch.no_grad()``.
+            works too (a scripted controller, an exported model), in either convention of
+            :func:`as_policy`: ``td -> td`` (it gets the env's tensordict ``[E]``:
+            "observation", "lidar", the flags, and returns a tensordict ``[E]`` with "action"
+            ``[E, 2]``) or ``obs -> action`` (``f(observation [E, F], lidar [E, R])`` returns
+            the action ``[E, 2]``, a tensor or array). The env clamps actions to ``[-1, 1]``.
+            It runs under ``torch.no_grad()``. Example, a controller that holds half throttle
+            and steers against the goal's lateral offset::
+
+                def drive(observation, lidar):
+                    return torch.stack(
+                        [torch.full_like(observation[:, 0], 0.5), -0.3 * observation[:, 1]], -1
+                    )
+
+                results, tolerance, errors = evaluate_policy(drive, EnvConfig(), 0.0, 20, 0)
 
     Returns:
         ``(results, (position tolerance [m], heading tolerance [deg]), errors)``: ``results``
@@ -69,6 +134,7 @@ def evaluate_policy(
     """
     # eager: a one-off batch does not repay the compile time
     env_cfg = dataclasses.replace(env_cfg, compile=False)
+    actor = as_policy(actor)
     env = TruckEnv(num_envs=episodes, device=device, config=env_cfg, seed=seed)
     env.set_difficulty(difficulty)
     tol_pos, tol_ang = env.tolerances()
@@ -158,6 +224,7 @@ def policy_actions(
     ``truckrl plan checkpoint=`` checks a policy's solutions with the planner's replay.
     """
     env_cfg = dataclasses.replace(env_cfg, compile=False)
+    actor = as_policy(actor)
     e = states.batch_size[0]
     env = TruckEnv(num_envs=e, device=device, config=env_cfg, seed=0)
     env.set_difficulty(difficulty)
