@@ -1,0 +1,138 @@
+"""Stable-Baselines3 PPO on N batched trucks, with the paper's curriculum driven from a callback.
+
+    pip install 'truckrl[sb3]'
+    python examples/sb3_ppo.py                       # a short run (20,480 frames)
+    python examples/sb3_ppo.py --frames 600000 --stop-difficulty 2
+
+The env is :class:`truckrl.gym.sb3.TruckSB3VecEnv`: one batched simulation of ``--envs`` trucks
+behind SB3's ``VecEnv`` interface. The curriculum is truckrl's own
+(:class:`truckrl.rl.curriculum.Curriculum`, the paper's rule: an EMA of episode success over
+all trucks, a = 0.995; above 0.70 the difficulty rises by 0.5 and the goal tolerances,
+``30 m * 2**-d`` and ``60 deg * 2**-d``, halve every two promotions): :class:`CurriculumCallback`
+feeds it the episodes that end at each step and calls ``set_difficulty`` on the env when it
+promotes.
+
+The PPO numbers follow truckrl's ``experiment=quick`` (``truckrl/conf/experiment/quick.yaml``:
+128 trucks x 32 steps per update, 4 minibatches, 5 epochs, lr 3e-4, gamma 0.998, the paper's
+GAE lambda, clip and entropy weight, the numeric MLP's widths) and, for the intersection task,
+its scene and reward overrides (straight roads, a larger progress reward, a cost per step).
+SB3's policy is its own (``MultiInputPolicy``: both observation keys flattened into one MLP),
+not truckrl's two-branch network, and its learning rate is fixed where truckrl's adapts to the
+KL divergence.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3 import PPO
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecMonitor
+
+from truckrl.gym.sb3 import TruckSB3VecEnv
+from truckrl.rl.curriculum import Curriculum, CurriculumConfig
+
+#: Per-task env overrides of experiment=quick (truckrl/conf/experiment/quick.yaml and the
+#: task's train_scenes/quick_<task>.yaml); other tasks run with their defaults.
+QUICK_OVERRIDES: dict[str, dict[str, Any]] = {
+    "intersection": {
+        "task.scene.crossing_prob": 0.0,
+        "task.reward.progress": 0.2,
+        "task.reward.time": -0.005,
+    },
+}
+
+#: PPO settings of experiment=quick in SB3's names (ppo/fast.yaml, quick.yaml, PPOConfig and
+#: ModelConfig defaults for the rest).
+PPO_KWARGS: dict[str, Any] = {
+    "n_steps": 32,
+    "batch_size": 1024,
+    "n_epochs": 5,
+    "learning_rate": 3e-4,
+    "gamma": 0.998,
+    "gae_lambda": 0.95,
+    "clip_range": 0.2,
+    "ent_coef": 0.005,
+    "vf_coef": 0.5,
+    "policy_kwargs": {"net_arch": [128, 64], "log_std_init": math.log(0.5)},
+}
+
+
+class CurriculumCallback(BaseCallback):
+    """Feeds each step's finished episodes (success and the difficulty they were judged at,
+    from SB3's ``infos``) to a :class:`~truckrl.rl.curriculum.Curriculum`; on a promotion it
+    sets the env's difficulty (``env_method("set_difficulty", d)``). Stops training once the
+    difficulty reaches ``stop_difficulty`` (``None``: never).
+
+    Attributes:
+        promotions: ``[(difficulty, frames)]``, one per promotion.
+    """
+
+    def __init__(self, curriculum: Curriculum, stop_difficulty: float | None = None) -> None:
+        super().__init__()
+        self.curriculum = curriculum
+        self.stop_difficulty = stop_difficulty
+        self.promotions: list[tuple[float, int]] = []
+
+    def _on_training_start(self) -> None:
+        self.training_env.env_method("set_difficulty", self.curriculum.difficulty)
+
+    def _on_step(self) -> bool:
+        ended = np.flatnonzero(self.locals["dones"])
+        if ended.size:
+            infos = self.locals["infos"]
+            success = torch.tensor([infos[i]["success"] for i in ended])
+            judged_at = torch.tensor([infos[i]["difficulty"] for i in ended])
+            if self.curriculum.update(success, judged_at):
+                d = self.curriculum.difficulty
+                self.training_env.env_method("set_difficulty", d)
+                self.promotions.append((d, self.num_timesteps))
+                self.logger.record("curriculum/difficulty", d)
+                print(f"difficulty {d:g} at {self.num_timesteps:,} frames", flush=True)
+        stop = self.stop_difficulty
+        return stop is None or self.curriculum.difficulty < stop
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Train; returns ``{"difficulty", "frames", "promotions", "seconds"}``."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=20_480, help="total env steps (all trucks)")
+    parser.add_argument("--envs", type=int, default=128, help="trucks N in the batch")
+    parser.add_argument("--task", default="intersection", help="task folder")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--stop-difficulty", type=float, default=None, help="stop on reaching it")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--save", default=None, help="path to save the SB3 model (.zip)")
+    args = parser.parse_args(argv)
+
+    torch.set_num_threads(args.threads)
+    overrides = QUICK_OVERRIDES.get(args.task, {})
+    env = VecMonitor(TruckSB3VecEnv(num_envs=args.envs, task=args.task, **overrides))
+    curriculum = Curriculum(CurriculumConfig())  # the paper's rule
+    callback = CurriculumCallback(curriculum, args.stop_difficulty)
+    model = PPO("MultiInputPolicy", env, seed=args.seed, device="cpu", **PPO_KWARGS)
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=args.frames, callback=callback)
+    seconds = time.perf_counter() - t0
+    if args.save:
+        model.save(args.save)
+    result = {
+        "difficulty": curriculum.difficulty,
+        "frames": model.num_timesteps,
+        "promotions": callback.promotions,
+        "seconds": seconds,
+    }
+    print(
+        f"stopped at {result['frames']:,} frames, difficulty {curriculum.difficulty:g}, "
+        f"{seconds:.0f} s ({result['frames'] / seconds:,.0f} frames/s)"
+    )
+    return result
+
+
+if __name__ == "__main__":
+    main()
