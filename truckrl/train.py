@@ -35,25 +35,31 @@ iteration)``: a faithful continuation, not a bit-identical one.
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 from truckrl.cli import hydra_entry, workers_ignore_stop_signals
 
+#: ``time.monotonic()`` when ``truckrl train`` started (this module's import, before Hydra and
+#: torch load); the first job of the process measures its minutes from here.
+_STARTED = [time.monotonic()]
 workers_ignore_stop_signals(__name__)  # ParallelEnv workers: this process stops and closes them
 log = logging.getLogger("truckrl.train")
 
 
 def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None = None,
-          stop: Any = None, init: dict | None = None) -> Any:  # fmt: skip
+          stop: Any = None, init: dict | None = None, started: float | None = None) -> Any:  # fmt: skip
     """Run (or, with a loaded checkpoint ``state``, resume) one training job; return its counters.
     ``stop``: installed :class:`~truckrl.rl.session.StopSignals` (:func:`run` installs them).
     ``init``: a loaded checkpoint whose network weights start a new run (``tc.init``; ignored
-    when resuming). The job is a :class:`~truckrl.rl.trainer.Trainer`, iterated until a stop
-    reason; a signal ends it at the next iteration boundary (during a collection, at once) with
-    a checkpoint.
+    when resuming). ``started``: ``time.monotonic()`` at the session's start, from which its
+    minutes count (default: now). The job is a :class:`~truckrl.rl.trainer.Trainer`, iterated
+    until a stop reason; a signal ends it at the next iteration boundary (during a collection,
+    at once) with a checkpoint.
     """
+    started = time.monotonic() if started is None else started
     # Heavy imports here, not at module level: `--help` and config errors answer before they load
     import torch
 
@@ -65,7 +71,7 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
         torch.set_num_threads(tc.threads)
     stop = stop or StopSignals()
     source = git_revision()  # once: checkpoints record the commit the session started from
-    trainer = Trainer(tc, run_dir, state, parent, stop, init, source)
+    trainer = Trainer(tc, run_dir, state, parent, stop, init, source, started=started)
     seed_everything(tc.seed)
     trainer.setup()
     reason = None  # why the loop ended; None after an error (the last good checkpoint stays)
@@ -82,9 +88,11 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     return trainer.counters
 
 
-def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
+def run(tc: Any, job_dir: Path, explicit_dir: bool = True, started: float | None = None) -> Any:
     """Plan the session (run dir, resume or branch; :func:`~truckrl.rl.session.plan_session`)
-    and train; ``tc.resume``'s checkpoint supplies the config but for ``RESUME_OVERRIDES``."""
+    and train; ``tc.resume``'s checkpoint supplies the config but for ``RESUME_OVERRIDES``.
+    ``started``: ``time.monotonic()`` at the session's start (default: now)."""
+    started = time.monotonic() if started is None else started
     from truckrl.config.schemas import RESUME_OVERRIDES, TrainConfig
     from truckrl.rl.checkpoint import load_training_state
     from truckrl.rl.session import StopSignals, merged_config, plan_session
@@ -95,7 +103,7 @@ def run(tc: Any, job_dir: Path, explicit_dir: bool = True) -> Any:
         if plan.state:
             tc = merged_config(plan.state, asdict(tc), TrainConfig, RESUME_OVERRIDES, log)
         init = load_training_state(tc.init) if tc.init and not plan.state else None
-        return train(tc, plan.run_dir, plan.state, plan.parent, stop, init)
+        return train(tc, plan.run_dir, plan.state, plan.parent, stop, init, started)
     finally:
         stop.restore()
 
@@ -118,7 +126,13 @@ def main(tc: Any, raw: Any) -> None:
 
     hc = HydraConfig.get()
     named = any(o.startswith("hydra.run.dir=") for o in hc.overrides.hydra)
-    run(tc, Path(hc.runtime.output_dir), explicit_dir=hc.mode == RunMode.RUN and named)
+    started = _STARTED.pop() if _STARTED else None  # a sweep's later jobs: their own start
+    run(
+        tc,
+        Path(hc.runtime.output_dir),
+        explicit_dir=hc.mode == RunMode.RUN and named,
+        started=started,
+    )
     ignore_stop_signals()  # the run is over: a late Ctrl-C must not turn the exit into a traceback
 
 

@@ -6,7 +6,7 @@ A checkpoint is a plain dict of tensors, numbers, strings and containers of them
     {"version": 2,
      "model": state_dict, "ppo": {"optimizer": state_dict, "lr": float},
      "curriculum": {"difficulty", "ema", "promotions", "episodes"},
-     "counters": {"iteration", "frames", "wall_time_s"},
+     "counters": {"iteration", "frames", "wall_time_s", "quality"},
      "rng": {"torch": uint8 tensor, "numpy": {...}, "python": tuple},
      "num_obs": int, "num_beams": int,
      "config": resolved training config (truckrl.config.schemas.TrainConfig) as a YAML string,
@@ -239,6 +239,10 @@ def _to_lists(x: Any) -> Any:
     return [_to_lists(v) for v in x] if isinstance(x, tuple) else x
 
 
+#: Entries of ``counters.quality`` (the run's quality_reached record, or None; older
+#: checkpoints lack it), each a finite number >= 0.
+QUALITY_KEYS = ("minutes", "frames", "iteration", "difficulty", "success_rate")
+
 #: Entries every training checkpoint holds, with their type.
 TRAINING_KEYS: dict[str, type] = {
     "model": dict,
@@ -301,6 +305,11 @@ def best_record(path: str | os.PathLike) -> tuple[float, float] | None:
         return None
 
 
+def _count_like(v: Any) -> bool:
+    """A finite number >= 0 (not a bool)."""
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+
+
 def load_training_state(
     path: str | os.PathLike, map_location: str | torch.device = "cpu"
 ) -> dict[str, Any]:
@@ -345,6 +354,14 @@ def check_training_state(state: dict[str, Any], p: Path | str) -> None:
         or wall < 0
     ):
         raise CheckpointError(f"{p}: bad counters (counters.wall_time_s = {wall!r}; seconds >= 0)")
+    quality = c.get("quality")
+    if quality is not None and not (
+        isinstance(quality, dict) and all(_count_like(quality.get(k)) for k in QUALITY_KEYS)
+    ):
+        raise CheckpointError(
+            f"{p}: bad counters (counters.quality = {quality!r}; None or "
+            f"{{{', '.join(QUALITY_KEYS)}}}, each a number >= 0)"
+        )
     if (c["iteration"] == 0) != (c["frames"] == 0) or c["frames"] < c["iteration"]:
         raise CheckpointError(
             f"{p}: bad counters (iteration {c['iteration']} with {c['frames']} frames)"

@@ -7,6 +7,10 @@ the one further along ends the run first at a steady frame rate). The curriculum
 
 :func:`stop_lines` are the last lines of a run: why it stopped, the run dir, and the commands to
 evaluate, watch and plot it (and to continue it when time, frames or a signal stopped it).
+
+:class:`Quality` watches the held-out checks for the run's headline learning figure: the first
+one at or above ``log.quality_target`` at a curriculum difficulty >= ``log.quality_difficulty``
+(``quality_reached``: minutes since the run's start, demonstrations included, and frames).
 """
 
 from __future__ import annotations
@@ -22,7 +26,77 @@ REASONS = {
     "time": "max_minutes reached",
     "frames": "total_frames reached",
     "difficulty": "stop_difficulty reached",
+    "quality": "quality reached (stop_on_quality)",
 }
+
+#: Prefix of the ``quality_reached`` line and scalars.
+QUALITY = "quality"
+#: Slack [fraction] on the target: a held-out rate k/n is a float32 mean (190/200 reads
+#: 0.94999999), so a rate that equals the target must not miss it by its rounding (2**-24 is
+#: float32's relative step; 1e-6 is well above it and below any 1/n of a real evaluation).
+QUALITY_SLACK = 1e-6
+
+
+class Quality:
+    """The run's first held-out check with success >= ``target`` at difficulty >=
+    ``difficulty`` (``log.quality_target``, ``log.quality_difficulty``).
+
+    Args:
+        target: held-out success rate in [0, 1].
+        difficulty: curriculum difficulty at or above which a check counts.
+        reached: the record a resumed run's checkpoint holds (``Counters.quality``), or None.
+
+    Attributes:
+        reached: None until a check meets the target, then ``{"minutes", "frames",
+            "iteration", "difficulty", "success_rate"}`` of that check, never changed again.
+    """
+
+    def __init__(self, target: float, difficulty: float, reached: dict | None = None) -> None:
+        self.target, self.difficulty = target, difficulty
+        self.reached = dict(reached) if reached else None
+
+    def check(
+        self, success_rate: float, difficulty: float, minutes: float, frames: int, iteration: int
+    ) -> dict | None:
+        """The record when this check is the first to meet the target, else None.
+
+        Args:
+            success_rate: the check's held-out success rate in [0, 1].
+            difficulty: the curriculum difficulty it was run at.
+            minutes: the run's wall clock [min] since its start, all sessions, demos included.
+            frames: training frames so far (all sessions).
+            iteration: training iterations so far.
+        """
+        if self.reached is not None or difficulty < self.difficulty:
+            return None
+        if success_rate < self.target - QUALITY_SLACK:
+            return None
+        self.reached = {"minutes": float(minutes), "frames": int(frames),
+                        "iteration": int(iteration), "difficulty": float(difficulty),
+                        "success_rate": float(success_rate)}  # fmt: skip
+        return self.reached
+
+    def line(self) -> str:
+        """``quality_reached: ...`` for the log, or what was not reached (the run's last lines)."""
+        goal = f"held-out success >= {self.target:g} at difficulty >= {self.difficulty:g}"
+        q = self.reached
+        if q is None:
+            return f"{QUALITY}_reached: not yet ({goal})"
+        return (f"{QUALITY}_reached: {q['minutes']:.1f} min, {q['frames']:,} frames, iteration "
+                f"{q['iteration']}, difficulty {q['difficulty']:g}, held-out success "
+                f"{q['success_rate']:.3f} ({goal}; minutes since the run's start, "
+                "demonstrations included)")  # fmt: skip
+
+    def scalars(self) -> dict[str, float]:
+        """``quality/reached_minutes`` and ``quality/reached_frames`` of the record (empty
+        before it)."""
+        q = self.reached
+        if q is None:
+            return {}
+        return {
+            f"{QUALITY}/reached_minutes": q["minutes"],
+            f"{QUALITY}/reached_frames": q["frames"],
+        }
 
 
 def stop_reason(
@@ -32,8 +106,12 @@ def stop_reason(
     total_frames: int | None,
     max_minutes: float | None,
     stop_difficulty: float | None,
+    quality: bool = False,
 ) -> str | None:
-    """``"difficulty"``, ``"frames"``, ``"time"`` or None (keep going)."""
+    """``"quality"`` (``quality``: stop_on_quality is set and quality_reached has fired),
+    ``"difficulty"``, ``"frames"``, ``"time"`` or None (keep going)."""
+    if quality:
+        return "quality"
     if stop_difficulty is not None and difficulty >= stop_difficulty:
         return "difficulty"
     if total_frames is not None and frames >= total_frames:
@@ -96,9 +174,16 @@ class Progress:
 
 
 def stop_lines(
-    reason: str, run_dir: Path, iteration: int, frames: int, minutes: float, difficulty: float
+    reason: str,
+    run_dir: Path,
+    iteration: int,
+    frames: int,
+    minutes: float,
+    difficulty: float,
+    quality: str | None = None,
 ) -> list[str]:
-    """The last lines of a run: one line after a signal, else why, where, and what to run next."""
+    """The last lines of a run: one line after a signal, else why, where, what to run next and
+    the ``quality`` line (:meth:`Quality.line`) when given."""
     run = shown_path(run_dir)
     where = (
         f"iteration {iteration}, {frames:,} frames, {minutes:.1f} min, difficulty {difficulty:g}"
@@ -118,4 +203,4 @@ def stop_lines(
         lines.append(f"continue: {resume}")
     elif reason == "frames":  # total_frames counts all sessions together
         lines.append(f"continue: {resume} total_frames={2 * frames}")
-    return lines
+    return lines + ([quality] if quality else [])

@@ -242,11 +242,18 @@ def check_checkpoint_dir(run_dir: Path) -> Path:
 
 @dataclass
 class Counters:
-    """Training progress saved in every checkpoint (``counters``)."""
+    """Training progress saved in every checkpoint (``counters``).
+
+    ``wall_time_s`` [s] sums the sessions, each from its process's start (demonstrations
+    included) to its last checkpoint; the time a run lay stopped between sessions is not in it.
+    ``quality``: the run's ``quality_reached`` record (:class:`truckrl.rl.progress.Quality`), or
+    None until then; kept so a resumed run neither fires it again nor loses it.
+    """
 
     iteration: int = 0
     frames: int = 0
     wall_time_s: float = 0.0
+    quality: dict | None = None
 
 
 def resumed_config(saved: dict, current: dict, keep: tuple[str, ...], log: Any) -> dict:

@@ -10,7 +10,9 @@ PPO and its demonstrations, curriculum, collector, logger. One :meth:`~Trainer.i
 ``collector.workers x num_envs x steps_per_env`` frames, feeds finished episodes to the
 curriculum in start order (:mod:`truckrl.rl.cohorts`; a promotion reaches every worker before the
 next collection), runs the PPO update and logs to ``<run_dir>/tb``; videos, held-out checks and
-checkpoints follow when due.
+checkpoints follow when due. The first held-out check that meets ``log.quality_target`` at
+``log.quality_difficulty`` logs ``quality_reached`` (:class:`~truckrl.rl.progress.Quality`; with
+``stop_on_quality`` the run stops there).
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from truckrl.rl.logger import RunLogger, flatten
 from truckrl.rl.metrics import EpisodeTracker, hparam_metrics, iteration_scalars
 from truckrl.rl.network import make_actor_critic, parameter_count
 from truckrl.rl.ppo import PPO
-from truckrl.rl.progress import Progress, stop_lines, stop_reason
+from truckrl.rl.progress import Progress, Quality, stop_lines, stop_reason
 from truckrl.rl.session import Counters, StopSignals, write_parent
 from truckrl.tasks import make_task
 from truckrl.tasks.config import with_env_overrides
@@ -63,6 +65,8 @@ class Trainer:
             it once per session).
         sync_timings: wait for the device at each span end, so each span holds its own kernels
             (the benchmark; training does not pay for it).
+        started: ``time.monotonic()`` at the session's start (the entry point's, so start-up
+            and demonstrations count; default: now).
 
     The caller seeds the global generators (``truckrl.cli.seed_everything(tc.seed)``) before
     :meth:`setup`: the env, the network's init and the demonstrations draw from them.
@@ -71,13 +75,15 @@ class Trainer:
     def __init__(self, tc: Any, run_dir: Path, state: dict | None = None,
                  parent: dict | None = None, stop: StopSignals | None = None,
                  init: dict | None = None, source: dict | None = None,
-                 sync_timings: bool = False) -> None:  # fmt: skip
+                 sync_timings: bool = False, started: float | None = None) -> None:  # fmt: skip
         self.tc, self.run_dir, self.state, self.parent, self.init = tc, run_dir, state, parent, init
         self.stop = stop or StopSignals()
         self.sync_timings = sync_timings
         self.counters = Counters(**state["counters"]) if state else Counters()
-        self.session_start = time.monotonic()
+        self.session_start = time.monotonic() if started is None else started
         self.wall_at_start = self.counters.wall_time_s  # demonstrations count too
+        self.quality = Quality(tc.log.quality_target, tc.log.quality_difficulty,
+                               self.counters.quality)  # fmt: skip
         self.cfg_yaml = yaml.safe_dump(asdict(tc), sort_keys=False)
         self.source = source or {}
 
@@ -191,11 +197,19 @@ class Trainer:
         """Wall clock of this session [min]."""
         return (time.monotonic() - self.session_start) / 60.0
 
+    @property
+    def run_minutes(self) -> float:
+        """Wall clock of the run [min]: the earlier sessions' (to their last checkpoint) and
+        this one's, each from its start (demonstrations included)."""
+        return (self.wall_at_start + time.monotonic() - self.session_start) / 60.0
+
     def stop_reason(self) -> str | None:
-        """Why the run stops now (a signal, frames, minutes, difficulty), or None to go on."""
+        """Why the run stops now (a signal, quality, difficulty, frames, minutes), or None."""
         tc, cur = self.tc, self.curriculum
+        quality = tc.stop_on_quality and self.quality.reached is not None
         return self.stop.name or stop_reason(self.counters.frames, self.minutes, cur.difficulty,
-                                             tc.total_frames, tc.max_minutes, tc.stop_difficulty)  # fmt: skip
+                                             tc.total_frames, tc.max_minutes, tc.stop_difficulty,
+                                             quality)  # fmt: skip
 
     def _span(self, timings: dict | None, name: str, since: float) -> float:
         """End span ``name`` begun at ``since`` (waiting for the device first when syncing)."""
@@ -278,6 +292,7 @@ class Trainer:
                 self.ac.actor, tc.env, cur.difficulty, tc.log.eval_episodes, tc.device
             )
             self.logger.scalars(evals, counters.frames)
+            self._check_quality(evals["eval/success_rate"], float(cur.difficulty))
             record = (float(cur.difficulty), evals["eval/success_rate"])
             if tc.checkpoint.keep_best and (self.best_so_far is None or record > self.best_so_far):
                 self.best_so_far = record
@@ -287,6 +302,17 @@ class Trainer:
                          f"{record[0]:g} ({counters.frames:,} frames)")  # fmt: skip
         if counters.iteration % tc.checkpoint.interval == 0:
             self.save()
+
+    def _check_quality(self, success_rate: float, difficulty: float) -> None:
+        """Log ``quality_reached`` (a line and ``quality/*`` scalars) when this held-out check is
+        the run's first to meet the target; the record goes into the counters (checkpoints)."""
+        counters = self.counters
+        reached = self.quality.check(success_rate, difficulty, self.run_minutes,
+                                     counters.frames, counters.iteration)  # fmt: skip
+        if reached is not None:
+            counters.quality = dict(reached)
+            self.logger.scalars(self.quality.scalars(), counters.frames)
+            log.info(self.quality.line())
 
     # ------------------------------------------------------------------ saving and closing
     def save(self, final: bool = False, best: dict | None = None) -> None:
@@ -336,7 +362,7 @@ class Trainer:
     def final_lines(self, reason: str | None) -> list[str]:
         """The last lines of the session: why it stopped, where its checkpoint is, what next."""
         return stop_lines(reason, self.run_dir, self.counters.iteration, self.counters.frames,
-                          self.minutes, self.curriculum.difficulty)  # fmt: skip
+                          self.minutes, self.curriculum.difficulty, self.quality.line())  # fmt: skip
 
 
 def frames_due(interval: int, frames: int, window: int) -> bool:
