@@ -47,6 +47,7 @@ def _in_process(capsys, *argv: str) -> tuple[int, str, str]:
         (["peer_envs=0"], "peer_envs = 0"),
         (["parallel_envs=[1]", "workers=2"], "parallel_envs = [1]"),
         (["compile=maybe"], "compile = 'maybe'"),
+        (["gym=true", "repeats=0"], "repeats = 0"),
         (["--steps", "2"], "'--steps'"),
         (["no_such_key=1"], "unknown field(s) ['no_such_key']"),
     ],
@@ -64,7 +65,7 @@ def test_every_option_has_help(capsys):
     for key in (
         "quick", "envs", "workers", "parallel_envs", "steps", "compile", "paper", "collector",
         "scaling", "eager_max_envs", "plot", "peers", "peer_envs", "device", "threads", "seed",
-        "out",
+        "out", "gym", "repeats",
     ):  # fmt: skip
         line = next(x for x in stdout.splitlines() if x.strip().startswith(key + " "))
         assert len(line.strip()) > len(key) + 8, key  # followed by a description
@@ -86,6 +87,34 @@ def test_scaling_quick_writes_table_json_and_a_three_panel_png(tmp_path):
     assert all(r["steps/s"] > 0 for r in record["rows"])
     img = cv2.imread(str(png))
     assert img is not None and img.shape[1] > 2.5 * img.shape[0]  # three panels side by side
+
+
+def test_gym_row_beside_the_torchrl_row(tmp_path, capsys):
+    """gym=true: at each N a TorchRL row and a Gymnasium row, each the median of its alternating
+    runs, and their ratio; the record holds the runs."""
+    import statistics
+
+    from truckrl.bench import env as bench_env
+
+    argv = ["quick=true", "gym=true", "envs=[8]", "steps=3", "repeats=3", f"out={tmp_path}"]
+    bench_env.run(bench_env.parse(argv))
+    assert "gym / torchrl at N=8:" in capsys.readouterr().out
+    record = json.loads(next(tmp_path.glob("env-*.json")).read_text())
+    torchrl, gym = record["rows"]
+    assert (torchrl["layout"], gym["layout"]) == ("batched", "gym") and gym["trucks"] == 8
+    for row in (torchrl, gym):
+        assert len(row["runs"]) == 3 and row["steps/s"] == statistics.median(row["runs"])
+    assert gym["x torchrl"] == pytest.approx(gym["steps/s"] / torchrl["steps/s"])
+    assert torchrl["x torchrl"] is None and "x torchrl" in record["table"]
+
+
+def test_gym_without_gymnasium_is_one_line_exit_2(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "gymnasium", None)  # as if not installed
+    code, _, err = _in_process(capsys, "env", "gym=true", f"out={tmp_path}")
+    assert code == 2
+    assert err.strip().splitlines() == [
+        "error: gym=true needs Gymnasium: pip install 'truckrl[gym]'"
+    ]
 
 
 def test_peers_without_vmas_is_one_line_exit_2(tmp_path, capsys, monkeypatch):
