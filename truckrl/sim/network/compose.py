@@ -10,8 +10,10 @@ each network draws ``rounds`` candidates for its next block (type, shape, entry 
 and keeps the first whose footprint does not overlap any of its earlier blocks'; a network whose
 candidates all overlap ends there (``num_blocks`` is then below its drawn target, the way
 MetaDrive's block composition gives up after its tries). Blocks overlap where their footprint
-rectangles do, each padded by ``clearance / 2`` across and shortened by ``socket_slack`` along
-(:func:`rects_overlap`): roads of two blocks keep ``clearance`` apart, joined ones may touch.
+rectangles do (:func:`rects_overlap`), each padded by ``clearance / 2`` all round, so the roads
+of two blocks keep ``clearance`` apart; a block and its parent (the block it joins) are tested
+with their rectangles padded across but shortened by ``socket_slack`` along instead, so their
+joint is no overlap.
 
 The output (:class:`Network`) has the scene layout the env's collision and LiDAR read:
 ``segments [n, E, 4]`` (zero where padding), ``mask [n, E]`` and ``kind [n, E]`` (all curbs),
@@ -223,9 +225,15 @@ def grow(
                 torch.arange(S, device=dev).unsqueeze(0) != entry.unsqueeze(-1)
             )
             exit_ = pick_socket(others, exit_)
+        # against its parent: shortened by socket_slack at the ends, so the joint is no overlap;
+        # against older blocks: padded by clearance / 2 all round
+        fp, F0 = moved_footprint(block, angle, shift), rects.shape[1] - F
         hit = rects_overlap(
-            moved_footprint(block, angle, shift), rects.repeat(R, 1, 1), block.rect_mask,
-            rect_mask.repeat(R, 1), 0.5 * cfg.clearance, cfg.socket_slack,
+            fp, rects[:, F0:].repeat(R, 1, 1), block.rect_mask, rect_mask[:, F0:].repeat(R, 1),
+            0.5 * cfg.clearance, cfg.socket_slack,
+        ) | rects_overlap(
+            fp, rects[:, :F0].repeat(R, 1, 1), block.rect_mask, rect_mask[:, :F0].repeat(R, 1),
+            0.5 * cfg.clearance, -0.5 * cfg.clearance,
         )  # fmt: skip
         ok, row = first_valid(~hit.view(R, n))
         wanted = alive & (k < target)
