@@ -147,10 +147,10 @@ def _run_policy(ec: EvaluateConfig, spec: PolicySpec):
     """The policy's mean action on the scenes: ``(head, results, tolerance, errors, output,
     task name)``."""
     from truckrl.evaluation.rollout import evaluate_policy
-    from truckrl.rl.policy_specs import default_env, resolve_policy
+    from truckrl.rl.policy_specs import base_env, resolve_policy
     from truckrl.tasks.config import flat_overrides, with_env_overrides
 
-    policy = resolve_policy(spec, ec.device, default_env(ec.task))
+    policy = resolve_policy(spec, ec.device, base_env(ec.env))
     env_cfg = with_env_overrides(policy.env_config, ec.env, fixed=policy.fixed_env)
     difficulty = ec.difficulty
     if difficulty is None:
@@ -194,7 +194,7 @@ def _run_planner(ec: EvaluateConfig):
     import time
 
     from truckrl.planning import plan_episodes
-    from truckrl.rl.policy_specs import default_env
+    from truckrl.rl.policy_specs import base_env
     from truckrl.tasks.config import flat_overrides, with_env_overrides
 
     if ec.checkpoint:
@@ -206,7 +206,7 @@ def _run_planner(ec: EvaluateConfig):
         output = default_output(path, difficulty, ec.seed, ec.env)
         output = output.with_name(f"planner-{output.name}")
     else:
-        env_cfg, path = default_env(ec.task), None
+        env_cfg, path = base_env(ec.env), None
         difficulty = PLANNER_DIFFICULTY if ec.difficulty is None else ec.difficulty
         name = f"planner-{difficulty:g}-{ec.seed}{_tag(ec.env)}.json"
         output = Path("outputs") / EVAL_DIR / name
@@ -245,9 +245,11 @@ def print_table(s: dict, errors: tuple[Quantity, ...]) -> None:
 
 def prepare_argv(argv: list[str]) -> list[str]:
     """``env.FIELD=VALUE`` adds a key to the (empty) ``env`` overrides: Hydra spells that
-    ``+env.FIELD=VALUE``, so the ``+`` is added here."""
+    ``+env.FIELD=VALUE``, so the ``+`` is added here. ``task=NAME`` is short for
+    ``env.task.name=NAME`` (eval has no ``task`` group: a policy's env is its own)."""
     from truckrl.cli import plus_overrides
 
+    argv = [f"env.task.name={a[5:]}" if a.startswith("task=") else a for a in argv]
     return plus_overrides(argv, "env.")
 
 

@@ -304,11 +304,6 @@ class EvaluateConfig:
         doc="checkpoint file, run dir or pretrained[:TASK]: short for policy=checkpoint:PATH; "
         "with policy=planner, whose env config and scenes the planner gets",
     )
-    task: str | None = param(
-        None,
-        doc="task of a policy that brings no env config (module:function, planner without "
-        "checkpoint, an ONNX file without truckrl metadata); null: the default task",
-    )
     difficulty: float | None = param(
         None,
         lo=0.0,
@@ -326,20 +321,22 @@ class EvaluateConfig:
     env: dict[str, Any] = param(
         {},
         doc="the policy's env config changed for this evaluation only "
-        "(env.task.scene.crossing_prob=0.7); not the task or the beam count",
+        "(env.task.scene.crossing_prob=0.7); not the task or the beam count of a checkpoint or "
+        "ONNX export; task=NAME (env.task.name) picks the task of a policy without env config "
+        "(module:function, planner, an ONNX file without model card)",
     )
 
     def __post_init__(self) -> None:
         validate(self)
         check_device("device", self.device)
-        from truckrl.rl.policy_specs import default_env, spec_of
+        from truckrl.rl.policy_specs import base_env, spec_of
 
         if spec_of(self.policy, self.checkpoint) is None:
             raise ConfigError(
                 "checkpoint is required: checkpoint=<file or run dir> (or policy=SPEC: "
                 "pretrained, onnx:FILE, planner, module:function)"
             )
-        default_env(self.task)  # a task name that is not a task folder
+        base_env(self.env)  # a task name that is not a task folder
 
 
 ON_DONE = ("new", "same", "wait")

@@ -157,17 +157,21 @@ class ResolvedPolicy:
     fixed_env: bool = False
 
 
-def default_env(task: str | None) -> EnvConfig:
-    """The default env config of ``task`` (None: the default task).
+def base_env(overrides: dict | None) -> EnvConfig:
+    """The default env config of the task that env overrides name (``env.task.name``, which
+    ``task=NAME`` sets on eval's command line), else of the default task: the env of a policy
+    that brings none, before the overrides are merged in.
 
     Raises:
         ConfigError: no task folder of that name.
     """
-    if task is None:
+    task = (overrides or {}).get("task")
+    name = task.get("name") if isinstance(task, dict) else None
+    if name is None:
         return EnvConfig()
-    if task not in task_names():
-        raise ConfigError(f"task = {task!r} is not a task; known: {task_names()}")
-    return build(EnvConfig, {"task": {"name": task}}, "env")
+    if name not in task_names():
+        raise ConfigError(f"task = {name!r} is not a task; known: {task_names()}")
+    return build(EnvConfig, {"task": {"name": name}}, "env")
 
 
 def resolve_policy(
