@@ -286,3 +286,91 @@ def test_planner_policy_needs_no_checkpoint_but_the_policy_does():
         EvaluateConfig()
     with pytest.raises(ConfigError, match="policy"):
         EvaluateConfig(policy="oracle")
+
+
+# ---------------------------------------------------------------------------------- policy=SPEC
+def doc_block(marker: str) -> str:
+    """The python block of docs/evaluation.md that contains ``marker``."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "evaluation.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, re.S)
+    (block,) = [b for b in blocks if marker in b]
+    return block
+
+
+def test_the_docs_callable_example_runs_as_the_same_torchrl_module():
+    """docs/evaluation.md's ``obs -> action`` example gives the results of the same controller
+    written as a TorchRL module (a path that needs no convention)."""
+    scope: dict = {}
+    exec(doc_block("evaluate_policy(drive"), scope)
+    results = scope["results"]
+    module = TensorDictModule(
+        lambda obs: scope["drive"](obs, None), in_keys=["observation"], out_keys=["action"]
+    )
+    from truckrl.tasks import EnvConfig
+
+    ref, _, _ = evaluate_policy(module, EnvConfig(), 0.0, 20, 12345)
+    assert results.keys() == ref.keys() and results["success"].shape == (20,)
+    for k in ref:
+        assert torch.equal(results[k], ref[k]), k
+    assert results["success"].any() and not results["success"].all()
+
+
+def test_onnx_file_through_eval_matches_its_numpy_oracle(tmp_path, monkeypatch):
+    """``policy=onnx:FILE``: the model card's env and difficulty, results equal to the same
+    linear map run as a torch callable, the JSON under outputs/eval/."""
+    from tests.test_policy_specs import card_for, linear_onnx
+    from truckrl.tasks import EnvConfig
+
+    monkeypatch.chdir(tmp_path)
+    env_cfg = EnvConfig(max_steps=30)
+    a, b = linear_onnx(tmp_path / "lin.onnx", card=card_for(env_cfg, 2.5))
+    got = evaluate(EvaluateConfig(policy=f"onnx:{tmp_path / 'lin.onnx'}", episodes=8, seed=3))
+    assert got["policy"] == "onnx" and got["difficulty"] == 2.5 and got["checkpoint"] is None
+    assert got["output"] == "outputs/eval/onnx-lin-2.5-3.json"
+    written = json.loads((tmp_path / got["output"]).read_text())
+    assert written["onnx"] == str(tmp_path / "lin.onnx")
+    ta, tb = torch.from_numpy(a), torch.from_numpy(b)
+    ref, _, errors = evaluate_policy(lambda o, li: o @ ta + li @ tb, env_cfg, 2.5, 8, 3)
+    expected = rollout_module.summarize(ref, errors)
+    for k in ("success_rate", "collision_rate", "timeout_rate", "mean_length"):
+        assert written[k] == pytest.approx(expected[k]), k
+    assert written["pos_error_m_mean"] == pytest.approx(expected["pos_error_m_mean"], abs=1e-3)
+
+
+def test_module_policy_in_another_task(tmp_path, monkeypatch):
+    """docs/evaluation.md's ``my_drivers.py`` example, by ``policy=my_drivers:make task=dock``."""
+    import sys
+
+    from truckrl.evaluate import prepare_argv
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delitem(sys.modules, "my_drivers", raising=False)
+    (tmp_path / "my_drivers.py").write_text(doc_block("def make(env_config)"))
+    assert prepare_argv(["task=dock", "episodes=4"]) == ["+env.task.name=dock", "episodes=4"]
+    ec = EvaluateConfig(policy="my_drivers:make", env={"task": {"name": "dock"}}, episodes=4)
+    got = evaluate(ec)
+    assert got["task"] == "dock" and got["policy"] == "module" and got["difficulty"] == 6.0
+    assert got["output"] == "outputs/eval/module-my_drivers.make-6-12345-task.name=dock.json"
+    assert got["episodes"] == 4
+    with pytest.raises(ConfigError, match="env.task.name = 'dock': the env's task is"):
+        evaluate(EvaluateConfig(checkpoint="pretrained", env={"task": {"name": "dock"}}))
+
+
+def test_bad_policy_specs_on_the_command_line_are_one_line(tmp_path, monkeypatch, capsys):
+    from tests.reliability.harness import run_main
+
+    monkeypatch.chdir(tmp_path)
+    for args, fragment in [
+        (["policy=onnx:none.onnx"], "error: policy = 'onnx:none.onnx': file not found"),
+        (["policy=tflite"], "error: policy = 'tflite' is not a policy; use checkpoint:PATH"),
+        (["policy=pretrained", "checkpoint=x"], "give one (checkpoint=PATH is short for"),
+        (["policy=no_such_mod_q:make"], "module 'no_such_mod_q' does not import"),
+        (["policy=planner", "task=nope"], "task = 'nope' is not a task"),
+    ]:
+        r = run_main(capsys, "evaluate", *args, "episodes=2")
+        assert r.code == 2 and len(r.err.strip().splitlines()) == 1, (args, r.err)
+        assert fragment in r.err, (args, r.err)
+    assert list(tmp_path.iterdir()) == []  # nothing ran, nothing written

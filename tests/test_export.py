@@ -9,10 +9,22 @@ import pytest
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+import truckrl.export as export_module
 from tests.conftest import run_cli
-from truckrl.config.fields import ConfigError
+from tests.reliability.harness import run_main
+from truckrl.config.fields import ConfigError, build
 from truckrl.env import TruckEnv
-from truckrl.export import CARD_KEY, ExportConfig, export, observation_table
+from truckrl.export import (
+    CARD_KEY,
+    DeterministicActor,
+    ExportConfig,
+    ExportVerificationError,
+    export,
+    observation_table,
+    verify,
+)
+from truckrl.rl.policy import load_policy
+from truckrl.tasks import EnvConfig
 
 
 def random_inputs(n: int, num_obs: int, num_beams: int, seed: int = 0):
@@ -72,6 +84,79 @@ def test_onnx_matches_the_actor(tiny_checkpoint, tmp_path):
         "max steer rate"
     )
     assert len(card["inputs"]["lidar"]["beam_angles_deg"]) == tc.env.lidar.num_beams
+    assert build(EnvConfig, card["env_config"], "env") == tc.env  # eval policy=onnx: reads it
+    # the verification that export ran tells this file from another policy's
+    loaded = load_policy(run)
+    other = perturbed(DeterministicActor(loaded.actor))
+    with pytest.raises(ExportVerificationError, match="onnxruntime's actions differ"):
+        verify(out, "onnx", other, loaded)
+
+
+def perturbed(model: DeterministicActor, by: float = 1e-3) -> DeterministicActor:
+    """A copy of ``model`` with every weight moved by ``by``: a wrong file's policy."""
+    import copy
+
+    bad = copy.deepcopy(model)
+    with torch.no_grad():
+        for p in bad.parameters():
+            p.add_(by)
+    return bad
+
+
+def write_perturbed_torchscript(model, inputs, card, out):
+    """What a faulty writer would leave: a TorchScript file of the wrong weights."""
+    torch.jit.save(torch.jit.trace(perturbed(model), inputs), str(out))
+
+
+def test_a_file_that_fails_verification_is_removed_and_the_old_one_kept(
+    tiny_checkpoint, tmp_path, monkeypatch
+):
+    run, _, _ = tiny_checkpoint
+    out = tmp_path / "p.pt"
+    out.write_bytes(b"the previous export")
+    monkeypatch.setattr(export_module, "export_torchscript", write_perturbed_torchscript)
+    with pytest.raises(ExportVerificationError, match=r"torch.jit.load's actions differ .* on "
+                       r"704 real observations \(tolerance 0.0001\)"):  # fmt: skip
+        export(ExportConfig(checkpoint=str(run), format="torchscript", out=str(out)))
+    assert out.read_bytes() == b"the previous export"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.pt"]  # no temporary file left
+
+
+def test_a_model_the_onnx_checker_rejects_is_not_written(tiny_checkpoint, tmp_path, monkeypatch):
+    from onnx import TensorProto, helper
+
+    run, _, _ = tiny_checkpoint
+
+    def invalid(model, inputs, card, out, opset=None):  # a node reads a tensor nobody makes
+        info = helper.make_tensor_value_info
+        graph = helper.make_graph(
+            [helper.make_node("Relu", ["nowhere"], ["action"])],
+            "bad",
+            [info("observation", TensorProto.FLOAT, ["b", 26])],
+            [info("action", TensorProto.FLOAT, ["b", 2])],
+        )
+        model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+        out.write_bytes(model.SerializeToString())
+
+    pytest.importorskip("onnx")
+    monkeypatch.setattr(export_module, "export_onnx", invalid)
+    with pytest.raises(ExportVerificationError, match="the ONNX check failed: .*nowhere"):
+        export(ExportConfig(checkpoint=str(run), out=str(tmp_path / "p.onnx")))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failed_verification_is_one_line_and_exit_code_1(
+    tiny_checkpoint, tmp_path, monkeypatch, capsys
+):
+    run, _, _ = tiny_checkpoint
+    monkeypatch.setattr(export_module, "export_torchscript", write_perturbed_torchscript)
+    out = tmp_path / "p.pt"
+    r = run_main(capsys, "export", f"checkpoint={run}", "format=torchscript", f"out={out}",
+                 f"hydra.run.dir={tmp_path}")  # fmt: skip
+    assert r.code == 1 and "Traceback" not in r.err, r.err
+    lines = r.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: export not written, verification")
+    assert "export:" not in r.out and not out.exists()
 
 
 def test_observation_table_matches_the_env():
@@ -91,6 +176,7 @@ def test_cli_writes_next_to_the_run_and_bad_checkpoint_is_exit_2(tiny_checkpoint
     run, ac, tc = tiny_checkpoint
     proc = run_cli("export", f"checkpoint={run}", "format=torchscript", f"hydra.run.dir={tmp_path}")
     assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "verified: torch.jit.load: max |action - torch policy's| = " in proc.stdout
     model = torch.jit.load(str(run / "export" / "policy.pt"))  # this run's actor, beside it
     obs, lidar = random_inputs(5, 26, tc.env.lidar.num_beams, seed=3)
     torch.testing.assert_close(model(obs, lidar), actor_mean(ac, obs, lidar), atol=1e-5, rtol=0)

@@ -459,3 +459,98 @@ def test_pygame_window_reverses_with_s_held(monkeypatch):
     a, vr = float(s["params", "max_accel"]), float(s["params", "max_reverse_speed"])
     assert float(s["speed"]) == pytest.approx(max(-7 * a * DT, -vr), abs=1e-4)
     assert _gear(runner) == "R"
+
+
+# ---------------------------------------------------------------------------------- policy=SPEC
+PLAY_DRIVERS = """
+import torch
+
+def make(env_config):  # obs -> action: half throttle, steer against the lateral goal offset
+    return lambda observation, lidar: torch.stack(
+        [torch.full_like(observation[:, 0], 0.5), (-0.4 * observation[:, 1]).clamp(-1, 1)], -1
+    )
+"""
+
+
+@pytest.mark.parametrize("scheme", ["onnx", "module", "pretrained", "planner"])
+def test_play_drives_every_policy_scheme(scheme, tmp_path, monkeypatch):
+    """``play policy=SPEC`` headless: the first step applies the policy's action on the first
+    observation (computed here without the viewer), in the env the spec says."""
+    import sys
+
+    import truckrl.play as play_module
+    from tests.test_policy_specs import card_for, linear_onnx
+
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    small = EnvConfig(max_steps=30)
+    env_cfg, difficulty = small, None
+    if scheme == "onnx":
+        a, b = linear_onnx(tmp_path / "p.onnx", card=card_for(small, 2.5))
+        spec, difficulty = f"onnx:{tmp_path / 'p.onnx'}", 2.5
+
+        def oracle(first):
+            return first["observation"].numpy() @ a + first["lidar"].numpy() @ b
+
+    elif scheme == "module":
+        monkeypatch.chdir(tmp_path)
+        (tmp_path / "play_drivers.py").write_text(PLAY_DRIVERS)
+        monkeypatch.delitem(sys.modules, "play_drivers", raising=False)
+        spec, env_cfg = "play_drivers:make", EnvConfig(max_steps=30, task={"name": "dock"})
+
+        def oracle(first):
+            lateral = (-0.4 * first["observation"][:, 1]).clamp(-1, 1)
+            return np.array([[0.5, float(lateral[0])]], np.float32)
+
+    elif scheme == "pretrained":
+        from truckrl.rl.policy import load_policy
+
+        shipped = load_policy("pretrained")
+        spec, env_cfg, difficulty = "pretrained", shipped.env_config, shipped.difficulty
+
+        def oracle(first):
+            with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+                return shipped.actor(first.clone())["action"].numpy()
+
+    else:
+        from truckrl.planning import PlannerConfig, plan_states
+
+        tiny = PlannerConfig(compile=False, samples=8, iterations=1, attempts=1)
+        monkeypatch.setattr(play_module, "planner_config", lambda: tiny)
+        spec, difficulty = "planner", 1.0
+
+        def oracle(first):
+            env = TruckEnv(num_envs=1, seed=4, config=small)
+            env.reset()
+            res, _, _ = plan_states(small, env.get_state(), 1.0, tiny)
+            return res["actions"][0, :1].numpy()
+
+    pc = PlayConfig(headless=True, policy=spec, seed=4, view=SMALL_VIEW, env=env_cfg)
+    if scheme == "planner":
+        pc.difficulty = 1.0
+    runner, inputs, _, what = build_runner(pc)
+    assert runner.mode == "policy" and runner.env.config == dataclasses.replace(
+        env_cfg, compile=False
+    )
+    if difficulty is not None:
+        assert runner.env.get_difficulty() == difficulty
+    result = run_loop(runner, inputs, max_frames=2, episodes=1)  # an ended episode stays
+    assert result.steps == 1
+    expected = oracle(runner.first_observation)
+    np.testing.assert_allclose(runner.last_action.numpy(), expected, atol=1e-5, rtol=0)
+
+
+def test_play_policy_spec_on_the_command_line(tmp_path, monkeypatch, capsys):
+    from tests.reliability.harness import run_main
+    from tests.test_policy_specs import card_for, linear_onnx
+
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    linear_onnx(tmp_path / "p.onnx", card=card_for(EnvConfig(max_steps=30), 0.0))
+    view = ["view.size_px=64", "view.panel_px=0", f"hydra.run.dir={tmp_path}"]
+    r = run_main(capsys, "play", f"policy=onnx:{tmp_path / 'p.onnx'}", "headless=true", *view)
+    assert r.code == 0, r.err
+    assert f"play: policy {tmp_path / 'p.onnx'} (onnx:" in r.out and "episode 1:" in r.out
+    r = run_main(capsys, "play", "policy=absent_play_mod:make", "headless=true", *view)
+    assert r.code == 2 and len(r.err.strip().splitlines()) == 1
+    assert r.err.startswith("error: policy = 'absent_play_mod:make': module 'absent_play_mod'")
+    r = run_main(capsys, "play", "policy=planner", "actions=keys.txt", "headless=true", *view)
+    assert r.code == 2 and "give policy (or checkpoint) or actions, not both" in r.err

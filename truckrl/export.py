@@ -294,6 +294,7 @@ def default_out(loaded: LoadedPolicy, fmt: str) -> Path:
     return run_dir / "export" / f"policy{SUFFIX[fmt]}"
 
 
+@torch.no_grad()
 def verification_inputs(loaded: LoadedPolicy) -> tuple[Tensor, Tensor]:
     """Real observations ``([M, F], [M, R])``: :data:`VERIFY_TRUCKS` trucks of the checkpoint's env
     (seed 0, its curriculum difficulty) at reset and after each of :data:`VERIFY_STEPS` steps of
@@ -317,6 +318,7 @@ def verification_inputs(loaded: LoadedPolicy) -> tuple[Tensor, Tensor]:
     return torch.cat(obs).float(), torch.cat(lidar).float()
 
 
+@torch.no_grad()
 def verify(
     path: Path, fmt: str, model: DeterministicActor, loaded: LoadedPolicy
 ) -> tuple[float, int]:

@@ -292,7 +292,8 @@ class TrainConfig:
 
 @dataclass
 class EvaluateConfig:
-    """``truckrl eval``: deterministic evaluation of a policy (``policy=``, :mod:`truckrl.rl.policy_specs`)."""
+    """``truckrl eval``: deterministic evaluation of a policy (``policy=``: the specs of
+    ``truckrl/rl/policy_specs.py``)."""
 
     policy: str = param(
         "checkpoint",
