@@ -2,7 +2,7 @@
 # The GPU figures of docs/benchmarks.md ("GPU"), in one go, on a machine with one CUDA GPU and
 # truckrl's dependencies importable. Run from the repository root:
 #
-#   launch/gpu.sh OUT [checks|train|demos|all] [MINUTES]
+#   launch/gpu.sh OUT [checks|train|demos|quality|all] [MINUTES]
 #
 #   checks: the CUDA tests (tests/test_device.py: no host sync in env.step, a collector + PPO
 #           iteration that stays on the GPU), `bench env device=cuda` at N = 4,096 ... 262,144
@@ -13,12 +13,16 @@
 #           once more with the policy, the loss and the planner eager (the env stays compiled).
 #           Writes demos_perf.json: the promotions and the medians of the per-iteration
 #           timings, read from its TensorBoard log;
+#   quality: `python -m truckrl.train experiment=gpu_demos stop_on_quality=true` until training's
+#           held-out check first reads log.quality_target (0.95) at difficulty 6 (quality_reached),
+#           or MINUTES, with held-out checks every EVAL_FRAMES frames (default 10,000,000); then
+#           its last checkpoint on 1,000 held-out scenes (seed 12345) at difficulty 6;
 #
 # Logs, JSON and the runs' train.log and last checkpoint land flat in OUT; the run folders
 # themselves go to RUNS (default outputs/gpu). Every step runs even if an earlier one fails; the
 # exit code is the number of failures.
 set -u
-OUT=${1:?usage: launch/gpu.sh OUT [checks|train|demos|all] [MINUTES]}
+OUT=${1:?usage: launch/gpu.sh OUT [checks|train|demos|quality|all] [MINUTES]}
 WHAT=${2:-all}
 MIN=${3:-8}
 RUNS=${RUNS:-outputs/gpu}
@@ -73,5 +77,14 @@ first = {k: float(v[0, 2]) for k, v in s.items() if k.startswith("perf/")}
 print(json.dumps({"milestones": milestones(s), "median": med, "first_iteration": first,
                   "iterations": int(len(s["perf/fps"]))}, indent=1))
 PY
+fi
+if [ "$WHAT" = quality ]; then
+    step quality timeout $((MIN * 60 + 90)) python3 -m truckrl.train experiment=gpu_demos \
+        stop_on_quality=true max_minutes="$MIN" log.eval_interval_frames="${EVAL_FRAMES:-10000000}" \
+        hydra.run.dir="$RUNS/quality" overwrite=true log.progress_bar=false log.video_interval=0
+    cp "$RUNS/quality/train.log" "$OUT/quality_run.log"
+    grep -h "quality_reached" "$RUNS/quality/train.log" | tee "$OUT/quality_reached.txt"
+    step quality_eval python3 -m truckrl.evaluate checkpoint="$RUNS/quality" difficulty=6 \
+        episodes=1000 seed=12345 device=cuda output="$OUT/quality_eval.json"
 fi
 exit $fails
