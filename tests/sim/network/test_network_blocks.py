@@ -159,15 +159,18 @@ def test_crossing_and_t_junction_curbs_lie_on_their_roads_edges_outside_the_othe
             angle = p[i, 0] if name == "crossing" else -math.pi / 2
             roads = [np.array([1.0, 0.0]), np.array([math.cos(angle), math.sin(angle)])]
             normals = [np.array([-d[1], d[0]]) for d in roads]
-            mids = 0.5 * (curbs[:, :2] + curbs[:, 2:])
-            dist = np.stack([np.abs(mids @ n) for n in normals])  # [road, curb]
-            on_edge = np.isclose(dist, h, atol=1e-3)
-            assert on_edge.any(0).all(), (name, i)  # every curb on an edge line of a road
-            # ... and its midpoint outside the other road (the junction's surface is open)
+            # points along every curb: both ends and three between
+            f = np.linspace(0.0, 1.0, 5)[None, :, None]
+            pts = curbs[:, None, :2] + f * (curbs[:, None, 2:] - curbs[:, None, :2])  # [C, 5, 2]
+            dist = np.stack([np.abs(pts @ n) for n in normals])  # [road, curb, point]
+            on_edge = np.isclose(dist, h, atol=1e-3).all(-1)
+            assert on_edge.any(0).all(), (name, i)  # every curb along an edge line of a road
+            # ... and no point of it inside the other road (the junction's surface is open)
             in_road1 = dist[1] < h - 1e-3
             if name == "t_junction":  # the stem is half a road: below the bar only
-                in_road1 &= mids[:, 1] < -h + 1e-3
-            inside_other = np.where(on_edge[0], in_road1, dist[0] < h - 1e-3)
+                in_road1 &= pts[..., 1] < -h + 1e-3
+            in_road0 = dist[0] < h - 1e-3
+            inside_other = np.where(on_edge[0][:, None], in_road1, in_road0)
             assert not inside_other.any(), (name, i)
             assert len(curbs) == (8 if name == "crossing" else 5)
 
