@@ -95,8 +95,12 @@ def run(tc: Any, job_dir: Path, explicit_dir: bool = True, started: float | None
     started = time.monotonic() if started is None else started
     from truckrl.config.schemas import RESUME_OVERRIDES, TrainConfig
     from truckrl.rl.checkpoint import load_training_state
+    from truckrl.rl.logger import check_backend
     from truckrl.rl.session import StopSignals, merged_config, plan_session
 
+    check_backend(
+        tc.log.backend, tc.log.backend_args
+    )  # a missing extra: one line before any work (log: as given)
     stop = StopSignals().install()  # from here on a signal stops at the next iteration boundary
     try:
         plan = plan_session(tc.resume, tc.overwrite, job_dir, explicit_dir)
@@ -109,12 +113,13 @@ def run(tc: Any, job_dir: Path, explicit_dir: bool = True, started: float | None
 
 
 def prepare_argv(argv: list[str]) -> list[str]:
-    """``train_env.FIELD=VALUE`` as Hydra's ``+train_env.FIELD=VALUE`` (a key of a free-form
-    dict), then the run-dir checks of :func:`truckrl.rl.session.prepare_argv`."""
+    """``train_env.FIELD=VALUE`` and ``log.backend_args.KEY=VALUE`` as Hydra's ``+...`` (a key
+    of a free-form dict), then the run-dir checks of :func:`truckrl.rl.session.prepare_argv`."""
     from truckrl.cli import plus_overrides
     from truckrl.rl.session import prepare_argv as check_run_dir
 
-    return check_run_dir(plus_overrides(argv, "train_env."))
+    argv = plus_overrides(plus_overrides(argv, "train_env."), "log.backend_args.")
+    return check_run_dir(argv)
 
 
 @hydra_entry("train", "TrainConfig", prepare="truckrl.train:prepare_argv")

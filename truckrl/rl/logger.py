@@ -1,11 +1,23 @@
-"""TensorBoard output of a training run: scalars, the config, hyper-parameters and videos.
+"""What a training run logs (scalars, the config, hyper-parameters and videos), through TorchRL's
+loggers (:mod:`torchrl.record.loggers`), chosen by ``log.backend``:
+
+* ``tensorboard`` (default): events in ``<run_dir>/tb`` (``TensorboardLogger``); what
+  ``truckrl tools curves`` and ``tools aggregate`` read;
+* ``csv``: ``<run_dir>/csv/scalars/<tag>.csv``, one ``step,value`` row per point
+  (``CSVLogger``), the same tags and values as TensorBoard's;
+* ``wandb`` (extra ``truckrl[wandb]``): a W&B run in ``<run_dir>/wandb`` (``WandbLogger``;
+  ``log.backend_args.offline=true`` or ``WANDB_MODE=offline`` keeps it local);
+* ``mlflow`` (extra ``truckrl[mlflow]``): an MLflow run (``MLFlowLogger``), by default in
+  ``sqlite:///<run_dir>/mlflow.db`` with artifacts in ``<run_dir>/mlartifacts``.
+
+``log.backend_args`` are passed to that logger's constructor. The global step is the number of
+environment frames. A resumed run continues its curves: TensorBoard opens the same directory
+with ``purge_step`` = the checkpoint's frame count + 1, so it drops whatever the killed run
+logged after its last checkpoint; csv drops those rows from its files; a W&B run continues the
+same run id (``<run_dir>/logger.json``), where points logged after the checkpoint stay.
 
 Drawing reads states only (:mod:`truckrl.viz`): this module steps the env for a video and hands
 each snapshot to :func:`truckrl.viz.video.render_frame`, the viewer's own renderer.
-
-Events go to ``<run_dir>/tb``; the global step is the number of environment frames. A resumed
-run opens the same directory with ``purge_step`` = the checkpoint's frame count + 1, so TensorBoard
-drops whatever the killed run logged after its last checkpoint and the curves continue seamlessly.
 
 Videos: one deterministic episode (the policy's mean action, the same seeded scene every time)
 drawn by the viewer's renderer, so each frame is exactly what ``truckrl play
@@ -14,19 +26,29 @@ with the start truck and the goal in view, the HUD panel and the outcome banner.
 is recorded after the first iteration, then whenever ``log.video_interval`` iterations or
 :data:`VIDEO_EVERY_S` seconds have passed since the last one (:class:`VideoSchedule`).
 
-Each video is written as ``<run_dir>/videos/iter_XXXXXX.mp4`` (H.264: browsers play it) and logged
-to TensorBoard as
+Each video is written as ``<run_dir>/videos/iter_XXXXXX.mp4`` (H.264: browsers play it) with
+every backend, and logged to TensorBoard as
 
 * ``video/rollout``: an animated GIF at 3/4 size (TensorBoard's image dashboard plays it;
-  ``SummaryWriter.add_video`` would make the same but needs moviepy < 2, not a dependency);
+  ``TensorboardLogger.log_video`` would make a video but needs moviepy < 2, not a dependency);
 * ``video/strip``: four bird's-eye views spread over the episode (first, ..., last), 360 px high;
-* ``video/file``: the mp4's path, as text.
+* ``video/file``: the mp4's path, as text;
+
+to W&B and MLflow as ``video/rollout`` through the logger's ``log_video`` (W&B needs moviepy,
+MLflow torchcodec; without them a warning says so once and the mp4 stays on disk); csv keeps
+the mp4 file only.
 """
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import importlib.util
+import inspect
+import json
+import os
 import time
+import uuid
 import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -38,7 +60,9 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch.utils.tensorboard import SummaryWriter
 from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.record.loggers import CSVLogger, Logger, TensorboardLogger
 
+from truckrl.config.fields import ConfigError
 from truckrl.env import TruckEnv
 from truckrl.tasks import OUTCOMES, EnvConfig
 from truckrl.viz.config import ViewConfig
@@ -59,6 +83,120 @@ STRIP_TILES, STRIP_HEIGHT = 4, 360
 GIF_SCALE = 0.75
 #: [s] the last frame (with the outcome banner) is held this long at the end of a video.
 END_HOLD_S = 1.0
+#: ``log.backend`` -> (the package it imports, the extra that installs it; None: a dependency).
+BACKENDS: dict[str, tuple[str | None, str | None]] = {
+    "tensorboard": ("tensorboard", None),
+    "csv": (None, None),
+    "wandb": ("wandb", "wandb"),
+    "mlflow": ("mlflow", "mlflow"),
+}
+#: Logger arguments the run sets itself (not ``log.backend_args``).
+SET_HERE = ("exp_name", "log_dir", "purge_step")
+#: Where a run keeps its logger's identity (the W&B run id) for the next session.
+LOGGER_FILE = "logger.json"
+
+
+def check_backend(backend: str, args: Mapping[str, Any] | None = None) -> None:
+    """Refuse a ``log.backend`` whose package is not installed, or ``args``
+    (``log.backend_args``) that its logger does not take (W&B and MLflow pass theirs on to
+    ``wandb.init`` / MLflow, which check them), before any training.
+
+    Raises:
+        ConfigError: one line naming the field, and the extra to install or the arguments
+            allowed.
+    """
+    module, extra = BACKENDS[backend]
+    if module is not None and importlib.util.find_spec(module) is None:
+        raise ConfigError(
+            f"log.backend = {backend} needs the {module} package, which is not installed: "
+            f"pip install 'truckrl[{extra or module}]'"
+        )
+    own = {"tensorboard": PurgingTensorboardLogger, "csv": CSVLogger}.get(backend)
+    if own is not None and args:
+        allowed = set(inspect.signature(own.__init__).parameters) - {"self", *SET_HERE}
+        bad = sorted(set(args) - allowed)
+        if bad:
+            raise ConfigError(
+                f"log.backend_args: {', '.join(bad)} is not an argument of the {backend} "
+                f"logger (allowed: {', '.join(sorted(allowed)) or 'none'})"
+            )
+
+
+class PurgingTensorboardLogger(TensorboardLogger):
+    """TorchRL's ``TensorboardLogger`` whose ``SummaryWriter`` gets a ``purge_step``.
+
+    Args:
+        exp_name: the events' folder name under ``log_dir``.
+        log_dir: the run dir.
+        purge_step: first global step to keep when continuing a run (None: a new run);
+            TensorBoard then drops the events a killed session logged at or after it.
+    """
+
+    def __init__(self, exp_name: str, log_dir: str, purge_step: int | None = None) -> None:
+        self.purge_step = purge_step
+        super().__init__(exp_name=exp_name, log_dir=log_dir)
+
+    def _create_experiment(self) -> SummaryWriter:
+        """The writer of ``<log_dir>/<exp_name>`` (the hook every TorchRL logger implements)."""
+        path = os.path.join(self.log_dir, self.exp_name)
+        return SummaryWriter(log_dir=path, purge_step=self.purge_step)
+
+
+def purge_csv(scalars_dir: Path, purge_step: int) -> None:
+    """Drop the rows at or after ``purge_step`` from every ``<tag>.csv`` under ``scalars_dir``
+    (what TensorBoard's ``purge_step`` does to its events), each file rewritten atomically."""
+    for f in sorted(scalars_dir.rglob("*.csv")):
+        with f.open(newline="") as fh:
+            rows = [r for r in csv.reader(fh) if r and int(float(r[0])) < purge_step]
+        tmp = f.with_name(f".{f.name}.tmp")
+        with tmp.open("w", newline="") as fh:
+            fh.writelines(f"{r[0]},{r[1]}\n" for r in rows)
+        os.replace(tmp, f)
+
+
+def open_backend(
+    backend: str, run_dir: Path, purge_step: int | None, args: Mapping[str, Any]
+) -> Logger:
+    """The TorchRL logger of ``backend`` for ``run_dir`` (module doc); ``purge_step`` not None:
+    the run continues from a checkpoint of that many frames (minus one).
+
+    Raises:
+        ConfigError: the backend is not installed, or ``args`` are not its logger's arguments.
+    """
+    check_backend(backend)
+    try:
+        return _open(backend, run_dir, purge_step, dict(args))
+    except TypeError as e:  # an argument the logger's constructor does not take
+        raise ConfigError(
+            f"log.backend_args: not arguments of the {backend} logger ({e})"
+        ) from None
+
+
+def _open(backend: str, run_dir: Path, purge_step: int | None, args: dict[str, Any]) -> Logger:
+    if backend == "tensorboard":
+        return PurgingTensorboardLogger("tb", str(run_dir), purge_step, **args)
+    if backend == "csv":
+        if purge_step is not None and (run_dir / "csv" / "scalars").is_dir():
+            purge_csv(run_dir / "csv" / "scalars", purge_step)
+        return CSVLogger("csv", str(run_dir), **args)
+    saved = run_dir / LOGGER_FILE
+    known = json.loads(saved.read_text()) if saved.is_file() else {}
+    if backend == "wandb":
+        from torchrl.record.loggers import WandbLogger
+
+        args.setdefault("id", known.get("id") or uuid.uuid4().hex[:16])
+        args.setdefault("save_dir", str(run_dir))
+        logger = WandbLogger(args.pop("exp_name", run_dir.name), **args)
+        ident = getattr(logger.experiment, "id", None) or args["id"]
+    else:
+        from torchrl.record.loggers import MLFlowLogger
+
+        args.setdefault("tracking_uri", f"sqlite:///{(run_dir / 'mlflow.db').resolve()}")
+        args.setdefault("artifact_location", (run_dir / "mlartifacts").resolve().as_uri())
+        logger = MLFlowLogger(args.pop("exp_name", "truckrl"), **args)
+        ident = str(logger.id)
+    saved.write_text(json.dumps({"backend": backend, "id": ident}) + "\n")
+    return logger
 
 
 def flatten(cfg: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -111,12 +249,17 @@ class VideoSchedule:
 
 
 class RunLogger:
-    """TensorBoard writer for one run directory.
+    """One run directory's logger: a TorchRL logger of ``backend`` (module doc) plus the videos.
 
     Args:
-        run_dir: the run's output directory (events in ``run_dir/tb``).
+        run_dir: the run's output directory.
         purge_step: first global step to keep when continuing a run (None for a new run).
         video_every_s: [s] wall clock after which a video is due (see :class:`VideoSchedule`).
+        backend: ``log.backend``.
+        backend_args: ``log.backend_args``, keyword arguments of that logger.
+
+    Raises:
+        ConfigError: the backend's package is not installed (:func:`check_backend`).
     """
 
     def __init__(
@@ -124,20 +267,45 @@ class RunLogger:
         run_dir: str | Path,
         purge_step: int | None = None,
         video_every_s: float = VIDEO_EVERY_S,
+        backend: str = "tensorboard",
+        backend_args: Mapping[str, Any] | None = None,
     ) -> None:
         self.run_dir = Path(run_dir)
-        self.writer = SummaryWriter(log_dir=str(self.run_dir / "tb"), purge_step=purge_step)
+        self.backend_name = backend
+        self.backend = open_backend(backend, self.run_dir, purge_step, backend_args or {})
         self.video_every_s = video_every_s
         self._schedule: VideoSchedule | None = None
+        self._video_warned = False
+
+    @property
+    def writer(self) -> SummaryWriter | None:
+        """The TensorBoard ``SummaryWriter`` (None with another backend)."""
+        return self.backend.experiment if self.backend_name == "tensorboard" else None
 
     def scalars(self, values: Mapping[str, float], step: int) -> None:
-        for k, v in values.items():
-            self.writer.add_scalar(k, v, global_step=step)
+        self.backend.log_metrics(dict(values), step=step)
 
     def config(self, yaml_text: str, hparams: Mapping[str, Any], metrics: Mapping[str, float]):
-        """Log the resolved config as text and the flattened config as an hparams table."""
-        self.writer.add_text("config", "```yaml\n" + yaml_text + "\n```", global_step=0)
-        self.writer.add_hparams(flatten(hparams), dict(metrics), run_name=".", global_step=0)
+        """Log the resolved config (as text where the backend has text) and the flattened config
+        as hyper-parameters with ``metrics`` at step 0 (TensorBoard: an hparams table)."""
+        text = "```yaml\n" + yaml_text + "\n```"
+        if self.writer is not None:
+            self.writer.add_text("config", text, global_step=0)
+            self.writer.add_hparams(flatten(hparams), dict(metrics), run_name=".", global_step=0)
+            return
+        if self.backend_name == "csv":
+            self.backend.experiment.add_text("config", text)
+        self.backend.log_hparams(flatten(hparams))
+        self.scalars(metrics, 0)
+
+    def final(self, hparams: Mapping[str, Any], metrics: Mapping[str, float], step: int) -> None:
+        """The hyper-parameters with the run's final ``metrics`` (``hparam/*`` scalars at
+        ``step``; TensorBoard: the hparams table's values)."""
+        if self.writer is not None:
+            self.writer.add_hparams(flatten(hparams), dict(metrics), run_name=".",
+                                    global_step=step)  # fmt: skip
+        else:
+            self.scalars(metrics, step)
 
     def video_due(self, iteration: int, every_iterations: int) -> bool:
         """Whether to record a video after ``iteration`` (first iteration, then by iterations or
@@ -149,22 +317,34 @@ class RunLogger:
     def video(
         self, frames: np.ndarray, views: np.ndarray, iteration: int, step: int, fps: float
     ) -> Path:
-        """Write ``frames`` (viewer frames) as an mp4 and log it: GIF, strip of ``views``, path."""
+        """Write ``frames`` (viewer frames) as an mp4 and log it (module doc): TensorBoard gets
+        a GIF, a strip of ``views`` and the path; W&B and MLflow the video."""
         path = write_mp4(self.run_dir / "videos" / f"iter_{iteration:06d}.mp4", frames, fps)
-        self._gif("video/rollout", frames, fps, step)
-        strip = frame_strip(views, STRIP_TILES, STRIP_HEIGHT, gap_px=6)
-        self.writer.add_image("video/strip", strip, step, dataformats="HWC")
-        self.writer.add_text("video/file", f"`{path}` (iteration {iteration})", step)
+        if self.writer is not None:
+            self._gif("video/rollout", frames, fps, step)
+            strip = frame_strip(views, STRIP_TILES, STRIP_HEIGHT, gap_px=6)
+            self.writer.add_image("video/strip", strip, step, dataformats="HWC")
+            self.writer.add_text("video/file", f"`{path}` (iteration {iteration})", step)
+        elif self.backend_name in ("wandb", "mlflow"):
+            video = torch.from_numpy(np.ascontiguousarray(frames)).permute(0, 3, 1, 2)[None]
+            try:  # [1, T, 3, H, W] uint8
+                self.backend.log_video("video/rollout", video, step=step, fps=round(fps))
+            except ImportError as e:  # the backend's video encoder is an optional package
+                if not self._video_warned:
+                    warnings.warn(f"videos stay on disk only ({e})", stacklevel=2)
+                    self._video_warned = True
         return path
 
     def _gif(self, tag: str, frames: np.ndarray, fps: float, step: int) -> None:
+        """An animated GIF as an image summary, into the writer's own event file (its public
+        ``file_writer``; ``add_image`` would encode a still PNG)."""
         from tensorboard.compat.proto.summary_pb2 import Summary
 
         data = gif_bytes(frames, fps, GIF_SCALE)
         h, w = (max(1, round(n * GIF_SCALE)) for n in frames.shape[1:3])
         image = Summary.Image(height=h, width=w, colorspace=3, encoded_image_string=data)
         summary = Summary(value=[Summary.Value(tag=tag, image=image)])
-        self.writer._get_file_writer().add_summary(summary, step)
+        self.writer.file_writer.add_summary(summary, step)
 
     def rollout_video(
         self, actor, env_cfg: EnvConfig, difficulty: float, seed: int, steps: int, device,
@@ -182,10 +362,10 @@ class RunLogger:
         return True
 
     def flush(self) -> None:
-        self.writer.flush()
+        self.backend.flush()
 
     def close(self) -> None:
-        self.writer.close()
+        self.backend.close()
 
 
 @torch.no_grad()

@@ -54,6 +54,7 @@ STOP_SIGNALS = tuple(
 #: What a training run writes into its run dir (cleared by ``overwrite=true``).
 RUN_OUTPUTS = (CHECKPOINT_DIR, "tb", "videos", "source.json", "parent.json")
 RUN_OUTPUTS += ("demos.json", "demos.pt")  # the demonstrations' summary and samples (imitation)
+RUN_OUTPUTS += ("csv", "wandb", "mlflow.db", "mlartifacts", "logger.json")  # other log.backends
 PARENT_FILE = "parent.json"
 AUTO = "auto"
 

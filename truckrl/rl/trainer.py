@@ -33,7 +33,7 @@ from truckrl.rl import checkpoint as ckpt
 from truckrl.rl import collection
 from truckrl.rl.cohorts import StartOrderFeed
 from truckrl.rl.curriculum import Curriculum
-from truckrl.rl.logger import RunLogger, flatten
+from truckrl.rl.logger import RunLogger
 from truckrl.rl.metrics import EpisodeTracker, hparam_metrics, iteration_scalars
 from truckrl.rl.network import make_actor_critic, parameter_count
 from truckrl.rl.ppo import PPO
@@ -175,12 +175,13 @@ class Trainer:
                  f"frames {self.counters.frames:,} -> run dir {self.run_dir}")  # fmt: skip
 
     def _open_logger(self, demos: dict | None) -> None:
-        """The TensorBoard writer; a new run records its config, source, demos and parent (a
+        """The run's logger (``log.backend``); a new run records its config, source, demos and parent (a
         continued run drops what the killed run logged after its checkpoint)."""
         tc, run_dir = self.tc, self.run_dir
         continued = self.state is not None and self.parent is None
         purge = self.counters.frames + 1 if continued else None
-        self.logger = RunLogger(run_dir, purge_step=purge)
+        self.logger = RunLogger(run_dir, purge_step=purge, backend=tc.log.backend,
+                                backend_args=tc.log.backend_args)  # fmt: skip
         if not continued:
             self.logger.config(self.cfg_yaml, asdict(tc), hparam_metrics(0.0, 0.0))
             (run_dir / "source.json").write_text(json.dumps(self.source) + "\n")
@@ -351,8 +352,7 @@ class Trainer:
             if reason is not None:
                 self.save(final=True)
                 final = hparam_metrics(self.curriculum.difficulty, self.curriculum.ema)
-                self.logger.writer.add_hparams(flatten(asdict(self.tc)), final, run_name=".",
-                                               global_step=self.counters.frames)  # fmt: skip
+                self.logger.final(asdict(self.tc), final, self.counters.frames)
         finally:
             self.logger.close()
             self.collector.shutdown()
