@@ -3,10 +3,16 @@
 Subprocess tests of the real entry points are marked ``e2e`` (kept in the default suite); they
 pass ``env.compile=false``, ``ppo.compile=false`` and ``collector.compile_policy=false``
 because compiling the step, the loss or the rollout policy costs 5-20 s per process.
+
+Under pytest-xdist (``-n 2``, one worker per core) each worker runs torch on one thread, and so
+does every process it starts (``OMP_NUM_THREADS=1`` in its environment): two workers with two
+intra-op threads each would contend for the two cores. A test that sets ``threads`` itself still
+gets what it sets.
 """
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from dataclasses import asdict
@@ -25,6 +31,15 @@ from truckrl.rl.network import make_actor_critic
 from truckrl.rl.ppo import PPO
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+def pytest_configure(config):
+    """One torch thread per xdist worker and per process it starts (see the module docstring)."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        os.environ["OMP_NUM_THREADS"] = "1"
+        torch.set_num_threads(1)
+
+
 #: Overrides that make a training run take seconds.
 TINY_TRAIN = [
     "collector.num_envs=16",

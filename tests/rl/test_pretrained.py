@@ -64,17 +64,25 @@ def test_outputs_of_a_shipped_policy_stay_out_of_the_package(shipped):
 CLAIMS = {"intersection": (0.977, 90), "dock": (0.816, 71), "uturn": (0.809, 70)}
 
 
-@pytest.fixture(scope="module", params=sorted(CLAIMS))
-def played(request, tmp_path_factory) -> tuple[str, dict]:
-    """``(task, fresh recording)``: :func:`~tests.golden.golden.golden_outcomes` of the shipped
-    policy of ``task``, made afresh in a subprocess under ``PINNED_ENV`` (scalar kernels, one
-    thread: the same bits on every CPU)."""
-    from tests.golden.golden import OUTCOME_FILES, load_golden, record_pinned
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory) -> Path:
+    """A folder with :func:`~tests.golden.golden.golden_outcomes` of every shipped policy, made
+    afresh in ONE subprocess under ``PINNED_ENV`` (scalar kernels, one thread: the same bits on
+    every CPU); one interpreter start instead of one per task."""
+    from tests.golden.golden import record_pinned
+
+    out = tmp_path_factory.mktemp("outcomes")
+    record_pinned(out, "--outcomes", *sorted(CLAIMS))
+    return out
+
+
+@pytest.fixture(params=sorted(CLAIMS))
+def played(request, recordings) -> tuple[str, dict]:
+    """``(task, fresh recording)`` of the shipped policy of ``task`` (from :func:`recordings`)."""
+    from tests.golden.golden import OUTCOME_FILES, load_golden
 
     task = request.param
-    out = tmp_path_factory.mktemp(f"outcomes_{task}")
-    record_pinned(out, "--outcomes", task)
-    return task, load_golden(out / OUTCOME_FILES[task].name)
+    return task, load_golden(recordings / OUTCOME_FILES[task].name)
 
 
 def test_the_shipped_policy_reaches_its_claimed_level(played):
