@@ -40,6 +40,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from truckrl.cli import hydra_entry, workers_ignore_stop_signals
 
 #: ``time.monotonic()`` when ``truckrl train`` started (this module's import, before Hydra and
@@ -123,22 +125,25 @@ def prepare_argv(argv: list[str]) -> list[str]:
 
 
 @hydra_entry("train", "TrainConfig", prepare="truckrl.train:prepare_argv")
-def main(tc: Any, raw: Any) -> None:
+def main(tc: Any, raw: Any) -> float:
+    """Train; return :func:`~truckrl.rl.progress.sweep_objective` of the run's last checkpoint
+    (what a sweeper such as ``+launch=optuna`` optimizes)."""
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
 
+    from truckrl.rl.checkpoint import load_checkpoint
+    from truckrl.rl.progress import sweep_objective
     from truckrl.rl.session import ignore_stop_signals
 
     hc = HydraConfig.get()
     named = any(o.startswith("hydra.run.dir=") for o in hc.overrides.hydra)
     started = _STARTED.pop() if _STARTED else None  # a sweep's later jobs: their own start
-    run(
-        tc,
-        Path(hc.runtime.output_dir),
-        explicit_dir=hc.mode == RunMode.RUN and named,
-        started=started,
-    )
+    run_dir = Path(hc.runtime.output_dir)  # a resume in place runs Hydra in the run dir
+    run(tc, run_dir, explicit_dir=hc.mode == RunMode.RUN and named, started=started)
     ignore_stop_signals()  # the run is over: a late Ctrl-C must not turn the exit into a traceback
+    state = load_checkpoint(run_dir)  # the run's last.pt: its config (a resume's) and curriculum
+    cc = yaml.safe_load(state["config"])["curriculum"]
+    return sweep_objective(state["curriculum"], cc["threshold"], cc["step"])
 
 
 if __name__ == "__main__":

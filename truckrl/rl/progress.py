@@ -121,6 +121,24 @@ def stop_reason(
     return None
 
 
+def sweep_objective(curriculum: dict, threshold: float, step: float) -> float:
+    """What ``truckrl train`` returns to a sweeper (``+launch=optuna`` maximizes it): the
+    curriculum's progress in difficulty units, ``difficulty + step * min(ema / threshold, 1)``.
+
+    Args:
+        curriculum: the run's final curriculum state (``difficulty``, ``ema``; a checkpoint's
+            ``curriculum`` entry).
+        threshold: ``curriculum.threshold``, the EMA that promotes.
+        step: ``curriculum.step``, the difficulty a promotion adds.
+
+    The EMA counts as the share of the next promotion it has earned, so of two runs at the same
+    difficulty the one closer to its next promotion ranks higher, and a promotion never lowers
+    the value (the EMA restarts below the threshold, the difficulty gains ``step``).
+    """
+    share = min(float(curriculum["ema"]) / threshold, 1.0)
+    return float(curriculum["difficulty"]) + step * share
+
+
 def _count(x: float) -> str:
     """``1234`` -> ``1.2k``, ``35_000_000`` -> ``35.0M``."""
     for unit, scale in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
