@@ -140,7 +140,7 @@ def test_a_model_the_onnx_checker_rejects_is_not_written(tiny_checkpoint, tmp_pa
 
     pytest.importorskip("onnx")
     monkeypatch.setattr(export_module, "export_onnx", invalid)
-    with pytest.raises(ExportVerificationError, match="the ONNX check failed: .*nowhere"):
+    with pytest.raises(ExportVerificationError, match="the ONNX checker rejects it: .*nowhere"):
         export(ExportConfig(checkpoint=str(run), out=str(tmp_path / "p.onnx")))
     assert list(tmp_path.iterdir()) == []
 

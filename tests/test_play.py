@@ -518,11 +518,11 @@ def test_play_drives_every_policy_scheme(scheme, tmp_path, monkeypatch):
         monkeypatch.setattr(play_module, "planner_config", lambda: tiny)
         spec, difficulty = "planner", 1.0
 
-        def oracle(first):
+        def oracle(first):  # the plan's first 16 actions (its steering turns at step 13)
             env = TruckEnv(num_envs=1, seed=4, config=small)
             env.reset()
             res, _, _ = plan_states(small, env.get_state(), 1.0, tiny)
-            return res["actions"][0, :1].numpy()
+            return res["actions"][0, :16].numpy()
 
     pc = PlayConfig(headless=True, policy=spec, seed=4, view=SMALL_VIEW, env=env_cfg)
     if scheme == "planner":
@@ -533,10 +533,14 @@ def test_play_drives_every_policy_scheme(scheme, tmp_path, monkeypatch):
     )
     if difficulty is not None:
         assert runner.env.get_difficulty() == difficulty
-    result = run_loop(runner, inputs, max_frames=2, episodes=1)  # an ended episode stays
-    assert result.steps == 1
+    steps = 16 if scheme == "planner" else 1  # the planner replays its plan: check a stretch
+    actions: list = []
+    sink = (lambda r: actions.append(r.last_action),)
+    result = run_loop(runner, inputs, max_frames=steps + 1, episodes=1, sinks=sink)
+    assert result.steps == steps  # an ended episode stays (episodes=1): one scene throughout
     expected = oracle(runner.first_observation)
-    np.testing.assert_allclose(runner.last_action.numpy(), expected, atol=1e-5, rtol=0)
+    got = torch.cat(actions[1:]).numpy()  # the first frame is before any step
+    np.testing.assert_allclose(got, expected, atol=1e-5, rtol=0)
 
 
 def test_play_policy_spec_on_the_command_line(tmp_path, monkeypatch, capsys):

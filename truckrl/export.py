@@ -336,11 +336,13 @@ def verify(
 
         try:
             onnx.checker.check_model(str(path), full_check=True)
+        except onnx.checker.ValidationError as e:
+            raise ExportVerificationError(f"the ONNX checker rejects it: {_first(e)}") from None
+        try:
             session = onnx_session(path, "export")
             check_onnx_io(session, loaded.env_config, "export")
-        except (onnx.checker.ValidationError, ConfigError) as e:
-            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-            raise ExportVerificationError(f"the ONNX check failed: {first}") from None
+        except ConfigError as e:
+            raise ExportVerificationError(_first(e)) from None
         (got,) = session.run(["action"], {"observation": obs.numpy(), "lidar": lidar.numpy()})
         runtime = "onnxruntime"
     else:
@@ -359,6 +361,11 @@ def export(cfg: ExportConfig) -> Path:
     """Load ``cfg.checkpoint``, write its deterministic actor and verify the file
     (:func:`export_verified`); returns the file written."""
     return export_verified(cfg)[0]
+
+
+def _first(e: Exception) -> str:
+    """The first line of an exception's message (its type when it has none)."""
+    return str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
 
 
 @torch.no_grad()
