@@ -160,6 +160,19 @@ def test_a_resumed_csv_run_drops_what_the_killed_session_logged(backend_runs):
     assert steps == [TINY_BATCH, 2 * TINY_BATCH, 3 * TINY_BATCH]
 
 
+def test_a_resume_to_another_backend_says_so(backend_runs, caplog):
+    """``log`` comes from the resume's command line: without ``log.backend=csv`` a csv run
+    goes on in TensorBoard, and the run says where its earlier sessions are."""
+    run_dir = backend_runs["csv"]
+    frames = load_checkpoint(run_dir)["counters"]["frames"]
+    with caplog.at_level("INFO", logger="truckrl.train"):
+        train_in(run_dir, f"resume={run_dir}", f"total_frames={frames + TINY_BATCH}")
+    assert (
+        "log.backend: tensorboard from here on; the earlier sessions logged to csv (resume "
+        "with log.backend=csv to keep one log)"
+    ) in caplog.messages
+
+
 def test_purge_csv_keeps_the_rows_before_the_purge_step(tmp_path):
     (tmp_path / "a").mkdir()
     (tmp_path / "a" / "b.csv").write_text("256,0.5\n512,0.25\n768,1.0\n")

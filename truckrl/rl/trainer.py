@@ -182,6 +182,13 @@ class Trainer:
         purge = self.counters.frames + 1 if continued else None
         self.logger = RunLogger(run_dir, purge_step=purge, backend=tc.log.backend,
                                 backend_args=tc.log.backend_args)  # fmt: skip
+        before = (yaml.safe_load(self.state["config"]) or {}).get("log", {}) if continued else {}
+        if (
+            before.get("backend", tc.log.backend) != tc.log.backend
+        ):  # log.* comes from the command line
+            log.info(f"log.backend: {tc.log.backend} from here on; the earlier sessions logged "
+                     f"to {before['backend']} (resume with log.backend={before['backend']} to "
+                     "keep one log)")  # fmt: skip
         if not continued:
             self.logger.config(self.cfg_yaml, asdict(tc), hparam_metrics(0.0, 0.0))
             (run_dir / "source.json").write_text(json.dumps(self.source) + "\n")
