@@ -17,6 +17,10 @@ Kinds of file, told apart by their keys:
 * ``"benchmark": "env"`` (``truckrl bench env``): env-steps/s per layout, eager and compiled.
 * ``"benchmark": "train"`` (``truckrl bench train``): the median training iteration and its parts.
 * ``"benchmark": "lidar"`` (``truckrl bench lidar``): time per scan (``""``), scans/s (``-scans``).
+* ``"kind": "quality"``: minutes to a good policy, one row per training run: minutes and frames
+  to difficulty 6, the best held-out check there, when the check first met the target
+  (``quality_reached``) or that it did not before the run stopped, and the final checkpoint's
+  held-out success.
 * an evaluation (``truckrl eval``: ``success_rate`` and ``categories``): outcome rates and final
   errors (``""``), the same per scene category (``-bins``).
 
@@ -392,16 +396,48 @@ def eval_tables(doc: dict[str, Any]) -> dict[str, Table]:
     return tables
 
 
+def quality_tables(doc: dict[str, Any]) -> dict[str, Table]:
+    """Minutes to a good policy: one row per run (see the module doc)."""
+    target = doc["target"]
+    goal = f"{pct(target['success'])} at {target['difficulty']:g}"
+    header = ["seed", "device", "minutes (frames) to difficulty 6", "best held-out check at 6",
+              f"held-out ≥ {goal}", "stopped", "final held-out success"]  # fmt: skip
+    rows = []
+    for r in doc["runs"]:
+        checks = r.get("checks_at_6") or []
+        best = max(checks, key=lambda c: c["success"], default=None)
+        best_text = f"{pct(best['success'])} at {best['minutes']:.1f} min" if best else "none"
+        q, stop = r.get("quality_reached"), r["stopped"]
+        reached = (
+            f"{q['minutes']:.1f} min ({q['frames'] / 1e6:.1f} M frames)"
+            if q
+            else f"not within {stop['minutes']:g} min"
+        )
+        final = r.get("final_heldout")
+        rows.append([
+            str(r["seed"]), r.get("device", ""),
+            f"{r['minutes_to_difficulty_6']:.1f} ({r['frames_to_difficulty_6'] / 1e6:.1f} M)",
+            best_text, reached,
+            f"{stop['minutes']:g} min, {stop['frames'] / 1e6:.1f} M frames ({stop['reason']})",
+            f"{pct(final['success'])} of {final['episodes']:,} (seed {final['seed']})" if final else "",
+        ])  # fmt: skip
+    return {"": (header, rows)}
+
+
 def kind_of(doc: dict[str, Any]) -> Callable[[dict[str, Any]], dict[str, Table]]:
     """The table maker for a JSON document, by its keys (see the module doc)."""
     if doc.get("kind") == "seeds":
         return seeds_tables
+    if doc.get("kind") == "quality":
+        return quality_tables
     makers = {"env": env_tables, "train": train_tables, "lidar": lidar_tables}
     if doc.get("benchmark") in makers:
         return makers[doc["benchmark"]]
     if "success_rate" in doc and "categories" in doc:
         return eval_tables
-    raise ValueError("not a seeds aggregate, a bench env|train|lidar record or an evaluation")
+    raise ValueError(
+        "not a seeds aggregate, a quality record, a bench env|train|lidar record or an evaluation"
+    )
 
 
 # ----------------------------------------------------------------------------------- rendering
