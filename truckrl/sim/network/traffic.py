@@ -1,0 +1,534 @@
+"""Moving traffic on a road network: cars and trucks as oriented boxes driving along lanes.
+
+Every network of a batch holds up to ``M`` vehicles (slots; ``active`` marks the used ones),
+each an oriented box ``length x width`` whose centre sits on a lane centre-line
+(:attr:`~truckrl.sim.network.compose.Network.lanes`) at arc length ``s`` and faces along it.
+One step (:func:`step_traffic`) moves all ``n x M`` vehicles with tensor ops only (no loop over
+networks or vehicles, no host sync), in four parts:
+
+1. **Car following**: the Intelligent Driver Model (Treiber, Hennecke and Helbing 2000,
+   Phys. Rev. E 62, 1805) with desired speed ``v0`` (per vehicle), time gap ``time_gap``,
+   least gap ``min_gap``, acceleration ``max_accel`` and comfortable deceleration
+   ``comfort_decel``. The leader is the nearest of: the vehicle ahead on the same lane or on the
+   lane it continues onto (bumper-to-bumper gap along the lanes); any other vehicle or ego box
+   whose centre lies ahead in the vehicle's corridor (its width plus the other's, plus
+   ``corridor_margin``, within ``look_ahead``); and the edge of a junction zone another vehicle
+   occupies (below). Speeds stay in ``[0, v0]``.
+2. **Junction yield**: each crossing, T-junction and roundabout is a zone, a disc round its
+   centre reaching ``zone_margin`` beyond its road surface. A vehicle is in a zone when its
+   centre is nearer than the zone's radius plus its half length. A vehicle may enter a zone
+   only while no other vehicle is in it and no vehicle of lower slot index enters it in the
+   same step; otherwise it holds where it is (and the IDM has braked it towards the edge).
+3. **Lane ends**: a vehicle passing its lane's end continues on the lane that starts there
+   (the next block's lane across a joint); where none does (an open road end of the network, or
+   an arm's in-lane ending on a roundabout ring) it reappears at the start of the lane it was
+   spawned on (its home lane), its box just inside the lane, once the home lane's first
+   ``length + min_gap`` is clear; until then it waits at the end. Nothing drives round a ring.
+4. **Safety filter**: a vehicle's move is kept only if its new box (grown by ``safety_margin``)
+   overlaps no other vehicle's box before or after the step and no ego box, and, of two
+   vehicles whose new boxes would overlap, only the one of lower slot index may move; a held
+   vehicle stops (``v = 0``). By induction from a spawn without overlaps, no two vehicles ever
+   overlap.
+
+:func:`traffic_segments` emits the boxes as 4 segments each, and :func:`with_traffic` appends
+them to a scene's ``segments``/``mask``/``kind``, so today's LiDAR sees them and
+:func:`~truckrl.sim.collision.truck_collides` reports touching one, unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import torch
+from torch import Tensor
+
+from truckrl.config.fields import ConfigError, param, validate
+from truckrl.sim.geometry import KIND_OBSTACLE, rectangle_segments
+from truckrl.sim.network.compose import Network
+from truckrl.sim.network.config import CROSSING, ROUNDABOUT, T_JUNCTION
+
+
+@dataclass
+class TrafficConfig:
+    """Traffic density, vehicle sizes and the driving rule's constants (module doc).
+
+    Lengths in metres, speeds in m/s; ranges are drawn uniformly (density per network, sizes
+    and desired speeds per vehicle).
+    """
+
+    max_vehicles: int = param(8, lo=0, hi=64, unit="-", doc="vehicle slots per network M")
+    density: tuple[float, float] = param(
+        (0.5, 2.0),
+        lo=0.0,
+        hi=20.0,
+        unit="1/100 m",
+        doc="vehicles per 100 m of lane, per network (capped by max_vehicles and free slots)",
+    )
+    truck_share: float = param(0.25, lo=0.0, hi=1.0, unit="-", doc="share of trucks")
+    car_length: tuple[float, float] = param((4.0, 5.0), lo=1.0, hi=8.0, unit="m", doc="car length")
+    car_width: tuple[float, float] = param((1.7, 2.0), lo=0.5, hi=3.0, unit="m", doc="car width")
+    truck_length: tuple[float, float] = param(
+        (8.0, 12.0), lo=2.0, hi=20.0, unit="m", doc="traffic truck length"
+    )
+    truck_width: tuple[float, float] = param(
+        (2.3, 2.55), lo=0.5, hi=3.0, unit="m", doc="traffic truck width"
+    )
+    speed: tuple[float, float] = param(
+        (5.0, 12.0), lo=0.0, hi=40.0, unit="m/s", doc="desired speed v0, per vehicle"
+    )
+    max_accel: float = param(
+        1.5, lo=0.1, hi=10.0, unit="m/s^2", doc="IDM acceleration a", source="Treiber et al. 2000"
+    )
+    comfort_decel: float = param(
+        2.0, lo=0.1, hi=10.0, unit="m/s^2", doc="IDM comfortable deceleration b",
+        source="Treiber et al. 2000",
+    )  # fmt: skip
+    min_gap: float = param(
+        2.0, lo=0.1, hi=20.0, unit="m", doc="IDM least bumper gap s0", source="Treiber et al. 2000"
+    )
+    time_gap: float = param(
+        1.5, lo=0.0, hi=5.0, unit="s", doc="IDM time gap T", source="Treiber et al. 2000"
+    )
+    look_ahead: float = param(
+        40.0, lo=1.0, hi=500.0, unit="m", doc="reach of the corridor and zone-edge leaders"
+    )
+    corridor_margin: float = param(
+        0.5, lo=0.0, hi=5.0, unit="m", doc="added to the corridor's half width"
+    )
+    zone_margin: float = param(
+        2.0, lo=0.0, hi=20.0, unit="m", doc="junction zone reach beyond its road surface"
+    )
+    safety_margin: float = param(
+        0.1, lo=0.0, hi=2.0, unit="m", doc="growth of a box in the safety filter"
+    )
+
+    def __post_init__(self) -> None:
+        validate(self, "traffic")
+        if self.max_vehicles > 0 and self.speed[1] <= 0.0:
+            raise ConfigError(f"traffic.speed = {list(self.speed)}: max must be > 0")
+
+    def spacing(self) -> float:
+        """Spawn slot pitch along a lane [m]: the longest vehicle plus ``min_gap`` plus 1 m."""
+        return max(self.car_length[1], self.truck_length[1]) + self.min_gap + 1.0
+
+
+@dataclass
+class Traffic:
+    """The traffic of ``n`` networks, ``M`` vehicle slots each (``P = K L`` lane slots)."""
+
+    lanes: Tensor  # [n, P, Q, 2] the network's lane centre-lines [m]
+    cum: Tensor  # [n, P, Q] arc length at each lane point [m]
+    lane_len: Tensor  # [n, P] [m]
+    pieces: Tensor  # [n, P] long: last non-empty piece of each lane
+    successor: Tensor  # [n, P] long: the lane starting where a lane ends (-1: none)
+    zone_centre: Tensor  # [n, K, 2] junction zones [m]
+    zone_radius: Tensor  # [n, K] [m]
+    zone_mask: Tensor  # [n, K]
+    lane: Tensor  # [n, M] long: the lane each vehicle drives on
+    home: Tensor  # [n, M] long: the lane it was spawned on (reappears there)
+    s: Tensor  # [n, M] arc length of its centre along its lane [m]
+    v: Tensor  # [n, M] speed [m/s], in [0, v0]
+    v0: Tensor  # [n, M] desired speed [m/s]
+    length: Tensor  # [n, M] [m]
+    width: Tensor  # [n, M] [m]
+    truck: Tensor  # [n, M] bool: a truck (else a car)
+    active: Tensor  # [n, M] bool: the slot holds a vehicle
+
+    def __len__(self) -> int:
+        return self.s.shape[0]
+
+
+# --------------------------------------------------------------------------------- geometry
+def _take(t: Tensor, idx: Tensor) -> Tensor:
+    """``t [n, P, ...]`` gathered along dim 1 by ``idx [n, M]``: ``[n, M, ...]``."""
+    shape = (*idx.shape, *t.shape[2:])
+    return torch.gather(t, 1, idx.view(*idx.shape, *([1] * (t.dim() - 2))).expand(shape))
+
+
+def lane_points(traffic: Traffic, lane: Tensor, s: Tensor) -> tuple[Tensor, Tensor]:
+    """Points ``[n, M, 2]`` [m] and headings ``[n, M]`` [rad] at arc lengths ``s [n, M]`` along
+    lanes ``lane [n, M]`` (beyond a lane's ends: along its first or last piece)."""
+    n, P, Q = traffic.cum.shape
+    rows = torch.arange(n, device=lane.device).unsqueeze(1) * P + lane  # [n, M] flat lane rows
+    cum = traffic.cum.reshape(n * P, Q)[rows]  # [n, M, Q]
+    idx = torch.searchsorted(cum, s.unsqueeze(-1).contiguous(), right=True).squeeze(-1) - 1
+    idx = torch.minimum(idx.clamp_min(0), traffic.pieces.reshape(-1)[rows])
+    flat = rows * Q + idx
+    pts, arc = traffic.lanes.reshape(-1, 2), traffic.cum.reshape(-1)
+    p0, p1, c0, c1 = pts[flat], pts[flat + 1], arc[flat], arc[flat + 1]
+    d = p1 - p0
+    t = ((s - c0) / (c1 - c0).clamp_min(1e-9)).unsqueeze(-1)
+    return p0 + t * d, torch.atan2(d[..., 1], d[..., 0])
+
+
+def boxes(traffic: Traffic) -> Tensor:
+    """The vehicles as boxes ``[n, M, 6]`` ``(cx, cy, cos, sin, half length, half width)``."""
+    xy, heading = lane_points(traffic, traffic.lane, traffic.s)
+    return _boxes(xy, heading, traffic.length, traffic.width)
+
+
+def _boxes(xy: Tensor, heading: Tensor, length: Tensor, width: Tensor) -> Tensor:
+    return torch.stack(
+        (xy[..., 0], xy[..., 1], torch.cos(heading), torch.sin(heading), 0.5 * length, 0.5 * width),
+        -1,
+    )
+
+
+def boxes_overlap(a: Tensor, b: Tensor, margin: float = 0.0) -> Tensor:
+    """Whether box ``a [..., A, 6]`` overlaps box ``b [..., B, 6]`` (each grown by ``margin``
+    [m] on every side): ``[..., A, B]`` bool, by the separating-axis test on the 4 edge normals
+    (boxes that only touch do not overlap)."""
+    a, b = a.unsqueeze(-2), b.unsqueeze(-3)
+    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
+    ua, la, wa = (a[..., 2], a[..., 3]), a[..., 4] + margin, a[..., 5] + margin
+    ub, lb, wb = (b[..., 2], b[..., 3]), b[..., 4] + margin, b[..., 5] + margin
+    apart = torch.zeros_like(dx, dtype=torch.bool)
+    axes = ((ua[0], ua[1]), (-ua[1], ua[0]), (ub[0], ub[1]), (-ub[1], ub[0]))
+    for ex, ey in axes:
+        reach = (
+            la * (ua[0] * ex + ua[1] * ey).abs()
+            + wa * (-ua[1] * ex + ua[0] * ey).abs()
+            + lb * (ub[0] * ex + ub[1] * ey).abs()
+            + wb * (-ub[1] * ex + ub[0] * ey).abs()
+        )
+        apart = apart | ((dx * ex + dy * ey).abs() >= reach)
+    return ~apart
+
+
+def ego_boxes(tractor: tuple[Tensor, ...], trailer: tuple[Tensor, ...]) -> Tensor:
+    """The truck's tractor and trailer (as :func:`~truckrl.sim.vehicle.truck_boxes` gives them:
+    ``(cx, cy, heading, front, rear, half_width)`` each ``[n]``) as boxes ``[n, 2, 6]``."""
+    out = []
+    for cx, cy, heading, front, rear, half_width in (tractor, trailer):
+        c, s = torch.cos(heading), torch.sin(heading)
+        mid = 0.5 * (front - rear)
+        out.append(
+            torch.stack((cx + c * mid, cy + s * mid, c, s, 0.5 * (front + rear), half_width), -1)
+        )
+    return torch.stack(out, 1)
+
+
+# ------------------------------------------------------------------------------------ setup
+def junction_zones(net: Network, cfg: TrafficConfig) -> tuple[Tensor, Tensor, Tensor]:
+    """Each junction block's zone (module doc): centres ``[n, K, 2]``, radii ``[n, K]`` and mask.
+
+    A crossing's or T-junction's centre is the midpoint of its sockets 0 and 1 (the ends of its
+    road 0 or bar); a roundabout's the mean of its sockets (evenly spaced arms). The radius
+    covers the road surface there: a crossing's parallelogram corner ``(w / 2) sqrt(2 + 2 |cos
+    a|) / sin a`` from its centre, a T-junction's square corner ``(w / 2) sqrt 2``, a
+    roundabout's outer curb ``radius + w / 2``; plus ``zone_margin``."""
+    t, p, w = net.block_type, net.block_params, net.road_width.unsqueeze(-1)
+    sock, smask = net.sockets[..., :2], net.socket_mask.unsqueeze(-1)
+    mid01 = 0.5 * (sock[:, :, 0] + sock[:, :, 1])
+    mean = (sock * smask).sum(2) / smask.sum(2).clamp_min(1)
+    centre = torch.where((t == ROUNDABOUT).unsqueeze(-1), mean, mid01)
+    a = p[..., 0]
+    cross = (
+        0.5 * w * torch.sqrt(2.0 + 2.0 * torch.cos(a).abs()) / torch.sin(a).abs().clamp_min(1e-3)
+    )
+    radius = torch.where(
+        t == CROSSING,
+        cross,
+        torch.where(t == T_JUNCTION, 0.5 * w * math.sqrt(2.0), p[..., 0] + 0.5 * w),
+    )
+    mask = net.block_mask & ((t == CROSSING) | (t == T_JUNCTION) | (t == ROUNDABOUT))
+    return centre, (radius + cfg.zone_margin) * mask, mask
+
+
+def lane_tables(net: Network) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """Arc lengths ``[n, P, Q]``, lengths ``[n, P]``, last non-empty piece ``[n, P]``, the
+    successor of each lane ``[n, P]`` (the usable lane whose start lies within 1 cm of its end,
+    -1 where none) and which lanes are usable ``[n, P]`` (valid and not a roundabout ring)."""
+    lanes = net.lanes
+    step = (lanes[:, :, 1:] - lanes[:, :, :-1]).norm(dim=-1)  # [n, P, Q - 1]
+    cum = torch.cat((torch.zeros_like(step[..., :1]), step.cumsum(-1)), -1)
+    nonempty = step > 1e-6
+    Qm1 = step.shape[-1]
+    idx = torch.arange(Qm1, device=lanes.device)
+    pieces = torch.where(nonempty, idx, -1).amax(-1).clamp_min(0)
+    L = net.lanes.shape[1] // net.block_type.shape[1]
+    ring = (_take(net.block_type, net.lane_block) == ROUNDABOUT) & (
+        torch.arange(lanes.shape[1], device=lanes.device) % L == 0
+    )
+    usable = net.lane_mask & ~ring
+    end = torch.gather(lanes, 2, (pieces + 1).view(*pieces.shape, 1, 1).expand(-1, -1, 1, 2))
+    near = (end - lanes[:, :, 0].unsqueeze(1)).norm(dim=-1) < 1e-2  # [n, P (end), P (start)]
+    near = near & usable.unsqueeze(1) & usable.unsqueeze(2)
+    near = near & ~torch.eye(lanes.shape[1], dtype=torch.bool, device=lanes.device)
+    successor = torch.where(near.any(-1), near.to(torch.uint8).argmax(-1), -1)
+    return cum, cum[..., -1], pieces, successor, usable
+
+
+def place_vehicles(
+    net: Network,
+    cfg: TrafficConfig,
+    lane: Tensor,
+    s: Tensor,
+    length: Tensor,
+    width: Tensor,
+    v0: Tensor,
+    active: Tensor | None = None,
+    truck: Tensor | None = None,
+) -> Traffic:
+    """Traffic with vehicles exactly where given (all ``[n, M]``: lane slot, arc length of the
+    centre [m], length, width [m], desired speed [m/s]), at rest; no overlap check (a scene
+    built by hand, as a test's)."""
+    cum, lane_len, pieces, successor, _ = lane_tables(net)
+    centre, radius, zmask = junction_zones(net, cfg)
+    z = torch.zeros_like(s)
+    return Traffic(
+        lanes=net.lanes, cum=cum, lane_len=lane_len, pieces=pieces, successor=successor,
+        zone_centre=centre, zone_radius=radius, zone_mask=zmask, lane=lane, home=lane.clone(),
+        s=s, v=z, v0=v0, length=length, width=width,
+        truck=truck if truck is not None else length > cfg.car_length[1],
+        active=active if active is not None else torch.ones_like(lane, dtype=torch.bool),
+    )  # fmt: skip
+
+
+def spawn_traffic(
+    net: Network,
+    cfg: TrafficConfig,
+    generator: torch.Generator | None = None,
+    reserved: Tensor | None = None,
+) -> Traffic:
+    """Random traffic on ``net`` (all networks at once), at rest.
+
+    Each usable lane is cut into slots ``cfg.spacing()`` long; a slot is free when its centre
+    lies outside every junction zone and every reserved disc by half a slot. Each network draws
+    a density and takes ``min(M, round(density x lane length / 100), free slots)`` free slots
+    at random; a vehicle (a truck with odds ``truck_share``) sits centred in each. A vehicle
+    whose box overlaps an earlier one's (curved lanes) is dropped, so no two overlap.
+
+    Args:
+        reserved: ``[n, R, 3]`` discs ``(x, y, radius)`` [m] no vehicle may occupy (a start and
+            a goal pose with the truck's reach), or ``None``.
+    """
+    n, dev, M = len(net), net.lanes.device, cfg.max_vehicles
+    cum, lane_len, pieces, successor, usable = lane_tables(net)
+    centre, radius, zmask = junction_zones(net, cfg)
+
+    def rand(*shape: int) -> Tensor:
+        return torch.rand(*shape, generator=generator, device=dev)
+
+    pitch = cfg.spacing()
+    P = lane_len.shape[1]
+    J = max(1, int((lane_len * usable).max() // pitch))  # setup step: one host read
+    j = torch.arange(J, device=dev)
+    slot_s = ((j + 0.5) * pitch).expand(n, P, J)
+    ok = usable.unsqueeze(-1) & ((j + 1) * pitch <= lane_len.unsqueeze(-1))
+    lanes = torch.arange(P, device=dev).view(1, P, 1).expand(n, P, J)
+    probe = Traffic(
+        lanes=net.lanes, cum=cum, lane_len=lane_len, pieces=pieces, successor=successor,
+        zone_centre=centre, zone_radius=radius, zone_mask=zmask, lane=lanes.reshape(n, -1),
+        home=lanes.reshape(n, -1), s=slot_s.reshape(n, -1), v=slot_s.reshape(n, -1),
+        v0=slot_s.reshape(n, -1), length=slot_s.reshape(n, -1), width=slot_s.reshape(n, -1),
+        truck=ok.reshape(n, -1), active=ok.reshape(n, -1),
+    )  # fmt: skip
+    xy, _ = lane_points(probe, probe.lane, probe.s)  # [n, P J, 2]
+    ok = ok.reshape(n, -1)
+    gap = (xy.unsqueeze(2) - centre.unsqueeze(1)).norm(dim=-1) - radius.unsqueeze(1)
+    ok = ok & ~(zmask.unsqueeze(1) & (gap < 0.5 * pitch)).any(-1)
+    if reserved is not None and reserved.shape[1] > 0:
+        d = (xy.unsqueeze(2) - reserved[:, None, :, :2]).norm(dim=-1) - reserved[:, None, :, 2]
+        ok = ok & ~(d < 0.5 * pitch).any(-1)
+    total = (lane_len * usable).sum(1)
+    density = cfg.density[0] + (cfg.density[1] - cfg.density[0]) * rand(n)
+    want = (density * total / 100.0).round().long().clamp_max(M)
+    score = torch.where(ok, rand(*ok.shape), -1.0)
+    k = min(M, ok.shape[1])
+    top, pick = score.topk(k, dim=1)
+    if k < M:
+        top = torch.cat((top, torch.full((n, M - k), -1.0, device=dev)), 1)
+        pick = torch.cat((pick, torch.zeros(n, M - k, dtype=torch.long, device=dev)), 1)
+    active = (top >= 0.0) & (torch.arange(M, device=dev) < want.unsqueeze(-1))
+    u = rand(n, M, 4)
+    truck = u[..., 0] < cfg.truck_share
+    length = torch.where(
+        truck,
+        cfg.truck_length[0] + (cfg.truck_length[1] - cfg.truck_length[0]) * u[..., 1],
+        cfg.car_length[0] + (cfg.car_length[1] - cfg.car_length[0]) * u[..., 1],
+    )
+    width = torch.where(
+        truck,
+        cfg.truck_width[0] + (cfg.truck_width[1] - cfg.truck_width[0]) * u[..., 2],
+        cfg.car_width[0] + (cfg.car_width[1] - cfg.car_width[0]) * u[..., 2],
+    )
+    v0 = cfg.speed[0] + (cfg.speed[1] - cfg.speed[0]) * u[..., 3]
+    traffic = replace(
+        probe,
+        lane=_take(probe.lane, pick),
+        home=_take(probe.lane, pick),
+        s=_take(probe.s, pick),
+        v=torch.zeros(n, M, device=dev),
+        v0=v0,
+        length=length,
+        width=width,
+        truck=truck,
+        active=active,
+    )
+    # drop any vehicle overlapping an earlier one (boxes on curves may reach past their slot)
+    hit = boxes_overlap(boxes(traffic), boxes(traffic), cfg.safety_margin)
+    pair = hit & active.unsqueeze(1) & active.unsqueeze(2)
+    earlier = torch.ones(M, M, dtype=torch.bool, device=dev).tril(-1)  # [i, j]: j < i
+    traffic.active = active & ~(pair & earlier).any(-1)
+    return traffic
+
+
+# ------------------------------------------------------------------------------------- step
+def _idm(cfg: TrafficConfig, v: Tensor, v0: Tensor, gap: Tensor, dv: Tensor) -> Tensor:
+    """IDM acceleration [m/s^2] (module doc) at speed ``v``, desired ``v0``, bumper gap ``gap``
+    [m] to the leader and closing speed ``dv`` [m/s] (``gap = inf``: free road)."""
+    a, b = cfg.max_accel, cfg.comfort_decel
+    free = 1.0 - (v / v0.clamp_min(1e-6)) ** 4
+    want = cfg.min_gap + (v * cfg.time_gap + v * dv / (2.0 * math.sqrt(a * b))).clamp_min(0.0)
+    return a * (free - (want / gap.clamp_min(1e-3)) ** 2)
+
+
+def step_traffic(
+    traffic: Traffic, cfg: TrafficConfig, dt: float, ego: Tensor | None = None
+) -> Traffic:
+    """All vehicles one step of ``dt`` [s] on (module doc). ``ego``: ``[n, B, 6]`` boxes the
+    vehicles treat as obstacles (:func:`ego_boxes` of the truck), or ``None``. Tensor ops only,
+    no host sync."""
+    tr = traffic
+    n, M = tr.s.shape
+    dev = tr.s.device
+    act = tr.active
+    xy, heading = lane_points(tr, tr.lane, tr.s)
+    box = _boxes(xy, heading, tr.length, tr.width)
+    half = 0.5 * tr.length
+    other = act.unsqueeze(1) & act.unsqueeze(2) & ~torch.eye(M, dtype=torch.bool, device=dev)
+    # ---- leaders along the lane: same lane ahead, or on the lane this one continues onto
+    my_len = _take(tr.lane_len, tr.lane)
+    succ = _take(tr.successor, tr.lane)
+    si, sj = tr.s.unsqueeze(2), tr.s.unsqueeze(1)  # [n, i, j]
+    same = tr.lane.unsqueeze(2) == tr.lane.unsqueeze(1)
+    ahead = torch.where(
+        same & (sj > si), sj - si,
+        torch.where(
+            (succ.unsqueeze(2) == tr.lane.unsqueeze(1)) & (succ.unsqueeze(2) >= 0),
+            my_len.unsqueeze(2) - si + sj, math.inf,
+        ),
+    )  # fmt: skip
+    lane_gap = (ahead - half.unsqueeze(2) - half.unsqueeze(1)).masked_fill(~other, math.inf)
+    on_lane = torch.isfinite(ahead)
+    # ---- anything else ahead in the corridor: other vehicles' and the ego's boxes
+    obst = box if ego is None else torch.cat((box, ego), 1)  # [n, M + B, 6]
+    o_ok = other & ~on_lane & ~same
+    if ego is not None:
+        o_ok = torch.cat((o_ok, torch.ones(n, M, ego.shape[1], dtype=torch.bool, device=dev)), 2)
+    c, s = torch.cos(heading).unsqueeze(2), torch.sin(heading).unsqueeze(2)
+    dx, dy = obst[..., 0].unsqueeze(1) - xy[..., :1], obst[..., 1].unsqueeze(1) - xy[..., 1:]
+    fwd, lat = c * dx + s * dy, -s * dx + c * dy
+    oc, os_ = obst[..., 2].unsqueeze(1), obst[..., 3].unsqueeze(1)
+    along = (
+        obst[..., 4].unsqueeze(1) * (c * oc + s * os_).abs()
+        + obst[..., 5].unsqueeze(1) * (-s * oc + c * os_).abs()
+    )
+    across = (
+        obst[..., 4].unsqueeze(1) * (-s * oc + c * os_).abs()
+        + obst[..., 5].unsqueeze(1) * (c * oc + s * os_).abs()
+    )
+    in_corridor = (
+        o_ok
+        & (fwd > 0.0)
+        & (fwd < cfg.look_ahead)
+        & (lat.abs() < 0.5 * tr.width.unsqueeze(2) + across + cfg.corridor_margin)
+    )
+    corridor_gap = (fwd - half.unsqueeze(2) - along).masked_fill(~in_corridor, math.inf)
+    v_obst = torch.cat((tr.v, torch.zeros(n, obst.shape[1] - M, device=dev)), 1)
+    v_along = v_obst.unsqueeze(1) * (c * oc + s * os_)
+    # ---- junction zones: inside now, and the edge of a zone someone else occupies
+    zd = (xy.unsqueeze(2) - tr.zone_centre.unsqueeze(1)).norm(dim=-1)  # [n, M, Z]
+    reach = tr.zone_radius.unsqueeze(1) + half.unsqueeze(2)
+    zm = tr.zone_mask.unsqueeze(1) & act.unsqueeze(2)
+    inside = zm & (zd < reach)
+    held_by = (inside.unsqueeze(1) & other.unsqueeze(-1)).any(2)  # [n, i, Z]: another is in
+    toward = (tr.zone_centre.unsqueeze(1) - xy.unsqueeze(2)) * torch.stack(
+        (torch.cos(heading), torch.sin(heading)), -1
+    ).unsqueeze(2)
+    zone_ahead = zm & ~inside & held_by & (toward.sum(-1) > 0.0) & (zd - reach < cfg.look_ahead)
+    zone_gap = (zd - reach).masked_fill(~zone_ahead, math.inf).amin(-1)
+    # ---- IDM towards the nearest leader
+    gaps = torch.cat((lane_gap, corridor_gap, zone_gap.unsqueeze(-1)), -1)
+    lead_v = torch.cat(
+        (tr.v.unsqueeze(1).expand(n, M, M), v_along, torch.zeros(n, M, 1, device=dev)), -1
+    )
+    gap, k = gaps.min(-1)
+    dv = tr.v - torch.gather(lead_v, 2, k.unsqueeze(-1)).squeeze(-1)
+    acc = _idm(cfg, tr.v, tr.v0, gap, torch.where(torch.isfinite(gap), dv, 0.0))
+    v = torch.minimum((tr.v + acc * dt).clamp_min(0.0), tr.v0)
+    # ---- move, continue onto the successor lane or reappear on the home lane
+    s_new = tr.s + v * dt
+    past = s_new > my_len
+    lane_new = torch.where(past, torch.where(succ >= 0, succ, tr.home), tr.lane)
+    s_new = torch.where(past, torch.where(succ >= 0, s_new - my_len, half), s_new)
+    # reappearing needs the home lane's first length + min_gap clear of other vehicles
+    on_home = (tr.lane.unsqueeze(1) == tr.home.unsqueeze(2)) & other
+    tail = (tr.s - half).unsqueeze(1)  # [n, 1, j] rear of each vehicle along its lane
+    crowded = (on_home & (tail < (tr.length + cfg.min_gap).unsqueeze(2))).any(-1)
+    reappear_blocked = past & (succ < 0) & crowded
+    xy_new, h_new = lane_points(tr, lane_new, s_new)
+    box_new = _boxes(xy_new, h_new, tr.length, tr.width)
+    # ---- junction yield: enter a zone only when it is empty and no lower slot enters it
+    zd_new = (xy_new.unsqueeze(2) - tr.zone_centre.unsqueeze(1)).norm(dim=-1)
+    enters = zm & (zd_new < reach) & ~inside  # [n, M, Z]
+    lower = torch.ones(M, M, dtype=torch.bool, device=dev).tril(-1)  # [i, j]: j < i
+    rival = (enters.unsqueeze(1) & (other & lower).unsqueeze(-1)).any(2)
+    wait = (enters & (held_by | rival)).any(-1)
+    # ---- safety filter (module doc)
+    g = cfg.safety_margin
+    hit_now = boxes_overlap(box_new, box, g) & other
+    hit_new = boxes_overlap(box_new, box_new, g) & other
+    blocked = hit_now.any(-1) | wait | reappear_blocked
+    if ego is not None:
+        blocked = blocked | boxes_overlap(box_new, ego, g).any(-1)
+    # i moves only if, for every j its new box meets, i < j or j is held anyway
+    lose = (hit_new & ~(lower.T.unsqueeze(0) | blocked.unsqueeze(1))).any(-1)
+    hold = ~act | blocked | lose
+    return replace(
+        tr,
+        lane=torch.where(hold, tr.lane, lane_new),
+        s=torch.where(hold, tr.s, s_new),
+        v=torch.where(hold, 0.0, v),
+    )
+
+
+# --------------------------------------------------------------------------------- segments
+def traffic_segments(traffic: Traffic) -> tuple[Tensor, Tensor]:
+    """The vehicles' outlines: ``[n, 4 M, 4]`` segments [m] (4 per box) and their mask."""
+    xy, heading = lane_points(traffic, traffic.lane, traffic.s)
+    half = 0.5 * traffic.length
+    seg = rectangle_segments(xy[..., 0], xy[..., 1], heading, half, half, 0.5 * traffic.width)
+    n, M = traffic.s.shape
+    mask = traffic.active.repeat_interleave(4, 1)
+    return seg.reshape(n, 4 * M, 4) * mask.unsqueeze(-1), mask
+
+
+def with_traffic(
+    segments: Tensor, mask: Tensor, kind: Tensor, traffic: Traffic
+) -> tuple[Tensor, Tensor, Tensor]:
+    """A scene's ``segments [n, E, 4]``, ``mask [n, E]`` and ``kind [n, E]`` with the vehicles'
+    outlines appended (``E + 4 M`` slots, kind ``KIND_OBSTACLE``): what LiDAR and collision
+    read."""
+    seg, m = traffic_segments(traffic)
+    k = torch.full(m.shape, KIND_OBSTACLE, dtype=kind.dtype, device=kind.device)
+    return torch.cat((segments, seg), 1), torch.cat((mask, m), 1), torch.cat((kind, k), 1)
+
+
+__all__ = [
+    "Traffic",
+    "TrafficConfig",
+    "boxes",
+    "boxes_overlap",
+    "ego_boxes",
+    "junction_zones",
+    "lane_points",
+    "lane_tables",
+    "place_vehicles",
+    "spawn_traffic",
+    "step_traffic",
+    "traffic_segments",
+    "with_traffic",
+]
