@@ -8,27 +8,36 @@ Under pytest-xdist (``-n 2``, one worker per core) each worker runs torch on one
 does every process it starts (``OMP_NUM_THREADS=1`` in its environment): two workers with two
 intra-op threads each would contend for the two cores. A test that sets ``threads`` itself still
 gets what it sets.
+
+``OMP_WAIT_POLICY=PASSIVE`` (set before torch loads its OpenMP runtime, so for this process and
+every process it starts): an idle intra-op thread sleeps instead of spinning. The tests' tensors
+are tiny, so with two threads the spinning cost as much CPU as the work (a ``threads=2`` tiny
+training run: 12 s of CPU spinning, 6 s passive, the same bits either way) and, on two
+cores, took it from the other test process. It changes how threads wait, not the arithmetic.
 """
 
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
-from dataclasses import asdict
-from pathlib import Path
 
-import pytest
-import torch
-import yaml
-from hydra import compose, initialize_config_dir
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads OpenMP (docstring)
 
-from truckrl.cli import CONFIG_PATH, to_config, with_task_presets
-from truckrl.config.schemas import TrainConfig, register
-from truckrl.rl.checkpoint import save_training_state
-from truckrl.rl.curriculum import Curriculum
-from truckrl.rl.network import make_actor_critic
-from truckrl.rl.ppo import PPO
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from dataclasses import asdict  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+import torch  # noqa: E402
+import yaml  # noqa: E402
+from hydra import compose, initialize_config_dir  # noqa: E402
+
+from truckrl.cli import CONFIG_PATH, to_config, with_task_presets  # noqa: E402
+from truckrl.config.schemas import TrainConfig, register  # noqa: E402
+from truckrl.rl.checkpoint import save_training_state  # noqa: E402
+from truckrl.rl.curriculum import Curriculum  # noqa: E402
+from truckrl.rl.network import make_actor_critic  # noqa: E402
+from truckrl.rl.ppo import PPO  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
