@@ -278,10 +278,10 @@ def _hydra_main(config_name: str, cls: type, fn: Callable) -> Callable[[], None]
 
     @hydra.main(version_base=None, config_path=CONFIG_PATH, config_name=config_name)
     @functools.wraps(fn)
-    def task(raw: Any) -> None:
+    def task(raw: Any) -> Any:  # the command's value: a sweeper's objective (+launch=optuna)
         try:
             with one_line_errors(in_task=True):
-                fn(to_config(cls, raw), raw)
+                return fn(to_config(cls, raw), raw)
         except Exception as e:
             setattr(e, _FROM_TASK, True)
             raise

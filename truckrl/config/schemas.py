@@ -133,6 +133,7 @@ RESUME_OVERRIDES = (
     "total_frames",
     "max_minutes",
     "stop_difficulty",
+    "stop_on_quality",
     "resume",
     "overwrite",
     "device",
