@@ -84,7 +84,7 @@ def overlapping_pairs(c: np.ndarray, active: np.ndarray) -> np.ndarray:
 def lane_gaps(net, tr) -> np.ndarray:
     """Bumper gaps [m] between each vehicle and the next one ahead on its lane (inf: none)."""
     lane, s, ln = tr.lane.numpy(), tr.s.double().numpy(), tr.length.double().numpy()
-    act = tr.active.numpy()
+    act = tr.present().numpy()
     same = (lane[:, :, None] == lane[:, None, :]) & act[:, :, None] & act[:, None, :]
     d = s[:, None, :] - s[:, :, None]
     gap = d - 0.5 * (ln[:, :, None] + ln[:, None, :])
@@ -129,7 +129,7 @@ def test_vehicles_never_overlap_and_follow_their_lanes(random_run):
     lanes = net.lanes.double().numpy()
     for k, tr in enumerate(states):
         xy, heading = poses(net, tr)
-        act = tr.active.numpy()
+        act = tr.present().numpy()
         c = corners(xy, heading, tr.length.double().numpy(), tr.width.double().numpy())
         hit = overlapping_pairs(c, act)
         assert not hit.any(), (
@@ -245,7 +245,7 @@ def test_spawns_keep_out_of_junctions_and_reserved_discs():
     reserved = torch.cat((first, torch.full((100, 1), 15.0)), -1).unsqueeze(1)
     tr = spawn_traffic(net, cfg, g, reserved)
     xy, _ = poses(net, tr)
-    act = tr.active.numpy()
+    act = tr.present().numpy()
     assert act.sum() > 4 * len(net)
     d = np.linalg.norm(xy - first.double().numpy()[:, None], axis=-1)
     assert (d[act] > 15.0).all()
@@ -294,5 +294,5 @@ def test_no_overlap_on_1000_networks_over_400_steps():
             tr = step_traffic(tr, cfg, DT)
         xy, heading = poses(net, tr)
         c = corners(xy, heading, tr.length.double().numpy(), tr.width.double().numpy())
-        assert not overlapping_pairs(c, tr.active.numpy()).any(), f"step {k}"
+        assert not overlapping_pairs(c, tr.present().numpy()).any(), f"step {k}"
         assert lane_gaps(net, tr).min() >= 0.9 * cfg.min_gap

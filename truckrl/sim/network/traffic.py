@@ -21,9 +21,10 @@ networks or vehicles, no host sync), in four parts:
    same step; otherwise it holds where it is (and the IDM has braked it towards the edge).
 3. **Lane ends**: a vehicle passing its lane's end continues on the lane that starts there
    (the next block's lane across a joint); where none does (an open road end of the network, or
-   an arm's in-lane ending on a roundabout ring) it reappears at the start of the lane it was
-   spawned on (its home lane), its box just inside the lane, once the home lane's first
-   ``length + min_gap`` is clear; until then it waits at the end. Nothing drives round a ring.
+   an arm's in-lane ending on a roundabout ring) it leaves the road (``waiting``: no box, no
+   segments) and reappears at rest at the start of the lane it was spawned on (its home lane),
+   its box just inside the lane, as soon as the home lane's first ``length + min_gap`` is clear
+   and the rules below let it. Nothing drives round a ring.
 4. **Safety filter**: a vehicle's move is kept only if its new box (grown by ``safety_margin``)
    overlaps no other vehicle's box before or after the step and no ego box, and, of two
    vehicles whose new boxes would overlap, only the one of lower slot index may move; a held
@@ -134,9 +135,14 @@ class Traffic:
     width: Tensor  # [n, M] [m]
     truck: Tensor  # [n, M] bool: a truck (else a car)
     active: Tensor  # [n, M] bool: the slot holds a vehicle
+    waiting: Tensor  # [n, M] bool: off the network, waiting to reappear on its home lane
 
     def __len__(self) -> int:
         return self.s.shape[0]
+
+    def present(self) -> Tensor:
+        """``[n, M]`` bool: the vehicles on the road (active and not waiting)."""
+        return self.active & ~self.waiting
 
 
 # --------------------------------------------------------------------------------- geometry
@@ -283,6 +289,7 @@ def place_vehicles(
         s=s, v=z, v0=v0, length=length, width=width,
         truck=truck if truck is not None else length > cfg.car_length[1],
         active=active if active is not None else torch.ones_like(lane, dtype=torch.bool),
+        waiting=torch.zeros_like(lane, dtype=torch.bool),
     )  # fmt: skip
 
 
@@ -323,7 +330,7 @@ def spawn_traffic(
         zone_centre=centre, zone_radius=radius, zone_mask=zmask, lane=lanes.reshape(n, -1),
         home=lanes.reshape(n, -1), s=slot_s.reshape(n, -1), v=slot_s.reshape(n, -1),
         v0=slot_s.reshape(n, -1), length=slot_s.reshape(n, -1), width=slot_s.reshape(n, -1),
-        truck=ok.reshape(n, -1), active=ok.reshape(n, -1),
+        truck=ok.reshape(n, -1), active=ok.reshape(n, -1), waiting=~ok.reshape(n, -1),
     )  # fmt: skip
     xy, _ = lane_points(probe, probe.lane, probe.s)  # [n, P J, 2]
     ok = ok.reshape(n, -1)
@@ -366,6 +373,7 @@ def spawn_traffic(
         width=width,
         truck=truck,
         active=active,
+        waiting=torch.zeros_like(active),
     )
     # drop any vehicle overlapping an earlier one (boxes on curves may reach past their slot)
     hit = boxes_overlap(boxes(traffic), boxes(traffic), cfg.safety_margin)
@@ -394,11 +402,12 @@ def step_traffic(
     tr = traffic
     n, M = tr.s.shape
     dev = tr.s.device
-    act = tr.active
+    act, on = tr.active, tr.present()
     xy, heading = lane_points(tr, tr.lane, tr.s)
     box = _boxes(xy, heading, tr.length, tr.width)
     half = 0.5 * tr.length
-    other = act.unsqueeze(1) & act.unsqueeze(2) & ~torch.eye(M, dtype=torch.bool, device=dev)
+    eye = torch.eye(M, dtype=torch.bool, device=dev)
+    other = on.unsqueeze(1) & on.unsqueeze(2) & ~eye  # both on the road
     # ---- leaders along the lane: same lane ahead, or on the lane this one continues onto
     my_len = _take(tr.lane_len, tr.lane)
     succ = _take(tr.successor, tr.lane)
@@ -442,9 +451,9 @@ def step_traffic(
     # ---- junction zones: inside now, and the edge of a zone someone else occupies
     zd = (xy.unsqueeze(2) - tr.zone_centre.unsqueeze(1)).norm(dim=-1)  # [n, M, Z]
     reach = tr.zone_radius.unsqueeze(1) + half.unsqueeze(2)
-    zm = tr.zone_mask.unsqueeze(1) & act.unsqueeze(2)
+    zm = tr.zone_mask.unsqueeze(1) & on.unsqueeze(2)
     inside = zm & (zd < reach)
-    held_by = (inside.unsqueeze(1) & other.unsqueeze(-1)).any(2)  # [n, i, Z]: another is in
+    held_by = (inside.unsqueeze(1) & ~eye.unsqueeze(-1)).any(2)  # [n, i, Z]: another is in
     toward = (tr.zone_centre.unsqueeze(1) - xy.unsqueeze(2)) * torch.stack(
         (torch.cos(heading), torch.sin(heading)), -1
     ).unsqueeze(2)
@@ -459,31 +468,39 @@ def step_traffic(
     dv = tr.v - torch.gather(lead_v, 2, k.unsqueeze(-1)).squeeze(-1)
     acc = _idm(cfg, tr.v, tr.v0, gap, torch.where(torch.isfinite(gap), dv, 0.0))
     v = torch.minimum((tr.v + acc * dt).clamp_min(0.0), tr.v0)
-    # ---- move, continue onto the successor lane or reappear on the home lane
+    # ---- move, continue onto the successor lane, or leave and reappear on the home lane
     s_new = tr.s + v * dt
-    past = s_new > my_len
-    lane_new = torch.where(past, torch.where(succ >= 0, succ, tr.home), tr.lane)
-    s_new = torch.where(past, torch.where(succ >= 0, s_new - my_len, half), s_new)
+    past = on & (s_new > my_len)
+    leaving = past & (succ < 0)  # off the network: waits, then reappears
+    appear = act & tr.waiting  # tries to reappear at its home lane's start
+    lane_new = torch.where(
+        past & (succ >= 0), succ, torch.where(leaving | appear, tr.home, tr.lane)
+    )
+    s_new = torch.where(
+        past & (succ >= 0), s_new - my_len, torch.where(leaving | appear, half, s_new)
+    )
+    there = (on & ~leaving) | appear  # the vehicles on the road after the move
     # reappearing needs the home lane's first length + min_gap clear of other vehicles
-    on_home = (tr.lane.unsqueeze(1) == tr.home.unsqueeze(2)) & other
+    on_home = (tr.lane.unsqueeze(1) == tr.home.unsqueeze(2)) & on.unsqueeze(1) & ~eye
     tail = (tr.s - half).unsqueeze(1)  # [n, 1, j] rear of each vehicle along its lane
     crowded = (on_home & (tail < (tr.length + cfg.min_gap).unsqueeze(2))).any(-1)
-    reappear_blocked = past & (succ < 0) & crowded
     xy_new, h_new = lane_points(tr, lane_new, s_new)
     box_new = _boxes(xy_new, h_new, tr.length, tr.width)
     # ---- junction yield: enter a zone only when it is empty and no lower slot enters it
     zd_new = (xy_new.unsqueeze(2) - tr.zone_centre.unsqueeze(1)).norm(dim=-1)
-    enters = zm & (zd_new < reach) & ~inside  # [n, M, Z]
+    enters = tr.zone_mask.unsqueeze(1) & there.unsqueeze(2) & (zd_new < reach) & ~inside
     lower = torch.ones(M, M, dtype=torch.bool, device=dev).tril(-1)  # [i, j]: j < i
-    rival = (enters.unsqueeze(1) & (other & lower).unsqueeze(-1)).any(2)
+    rival = (enters.unsqueeze(1) & lower.unsqueeze(-1)).any(2)  # [n, i, Z]
     wait = (enters & (held_by | rival)).any(-1)
     # ---- safety filter (module doc)
     g = cfg.safety_margin
-    hit_now = boxes_overlap(box_new, box, g) & other
-    hit_new = boxes_overlap(box_new, box_new, g) & other
-    blocked = hit_now.any(-1) | wait | reappear_blocked
+    hit_now = boxes_overlap(box_new, box, g) & on.unsqueeze(1) & ~eye
+    both = there.unsqueeze(1) & there.unsqueeze(2) & ~eye
+    hit_new = boxes_overlap(box_new, box_new, g) & both
+    blocked = hit_now.any(-1) | wait | (appear & crowded)
     if ego is not None:
         blocked = blocked | boxes_overlap(box_new, ego, g).any(-1)
+    blocked = blocked & there
     # i moves only if, for every j its new box meets, i < j or j is held anyway
     lose = (hit_new & ~(lower.T.unsqueeze(0) | blocked.unsqueeze(1))).any(-1)
     hold = ~act | blocked | lose
@@ -491,7 +508,8 @@ def step_traffic(
         tr,
         lane=torch.where(hold, tr.lane, lane_new),
         s=torch.where(hold, tr.s, s_new),
-        v=torch.where(hold, 0.0, v),
+        v=torch.where(hold | leaving | appear, 0.0, v),
+        waiting=torch.where(hold, tr.waiting, leaving),
     )
 
 
@@ -502,7 +520,7 @@ def traffic_segments(traffic: Traffic) -> tuple[Tensor, Tensor]:
     half = 0.5 * traffic.length
     seg = rectangle_segments(xy[..., 0], xy[..., 1], heading, half, half, 0.5 * traffic.width)
     n, M = traffic.s.shape
-    mask = traffic.active.repeat_interleave(4, 1)
+    mask = traffic.present().repeat_interleave(4, 1)
     return seg.reshape(n, 4 * M, 4) * mask.unsqueeze(-1), mask
 
 
