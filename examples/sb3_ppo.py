@@ -108,6 +108,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--stop-difficulty", type=float, default=None, help="stop on reaching it")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--save", default=None, help="path to save the SB3 model (.zip)")
+    parser.add_argument("--verbose", type=int, default=0, help="SB3's: 1 prints each update")
     args = parser.parse_args(argv)
 
     torch.set_num_threads(args.threads)
@@ -115,7 +116,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     env = VecMonitor(TruckSB3VecEnv(num_envs=args.envs, task=args.task, **overrides))
     curriculum = Curriculum(CurriculumConfig())  # the paper's rule
     callback = CurriculumCallback(curriculum, args.stop_difficulty)
-    model = PPO("MultiInputPolicy", env, seed=args.seed, device="cpu", **PPO_KWARGS)
+    model = PPO(
+        "MultiInputPolicy", env, seed=args.seed, device="cpu", verbose=args.verbose, **PPO_KWARGS
+    )
     t0 = time.perf_counter()
     model.learn(total_timesteps=args.frames, callback=callback)
     seconds = time.perf_counter() - t0
