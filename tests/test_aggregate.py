@@ -88,6 +88,8 @@ SYNTHETIC = {
     2: ([(0.5, 1000, 0.0), (5.0, 8000, 6.0)], 6.0, 0.0),
     3: ([(0.5, 1000, 0.0), (6.0, 9000, 5.5)], 5.5, 0.0),
 }
+#: seed -> its quality/reached_minutes; seed 3 never reached the target.
+QUALITY = {0: 7.5, 1: 9.0, 2: 12.0}
 T0 = 1.7e9  # [s] wall time of every run's first event
 SHIPPED = TASKS_DIR / "intersection" / "pretrained.pt"
 
@@ -120,6 +122,11 @@ def synthetic_run(root: Path, seed: int, lr: float | None = None) -> Path:
         wall = T0 + 60.0 * minutes
         logger.writer.add_scalar("curriculum/difficulty", value, frames, walltime=wall)
         logger.writer.add_scalar("episode/success_ema", value / 10, frames, walltime=wall)
+    if seed in QUALITY:  # training's quality_reached record, logged once
+        minutes = QUALITY[seed]
+        logger.writer.add_scalar(
+            "quality/reached_minutes", minutes, 4000, walltime=T0 + 60.0 * minutes
+        )
     logger.close()
     if demos_s:
         (run / "demos.json").write_text(json.dumps({"seconds": demos_s}))
@@ -155,8 +162,12 @@ def test_figures_per_seed_and_across_seeds(synthetic, tmp_path, capsys):
     assert data["config"].startswith("task=intersection")  # no .hydra/ records here
     m = data["metrics"]
     assert list(m) == [
-        "heldout_success", "minutes_to_difficulty_6", "frames_to_difficulty_6", "final_difficulty"
+        "heldout_success", "minutes_to_difficulty_6", "frames_to_difficulty_6",
+        "minutes_to_quality", "final_difficulty",
     ]  # fmt: skip
+    assert m["minutes_to_quality"]["per_seed"] == {"0": 7.5, "1": 9.0, "2": 12.0, "3": None}
+    # sorted 7.5, 9, 12, never (inf): IQM weights 0, 1, 1, 0 over n = 4 -> (9 + 12) / 2
+    assert m["minutes_to_quality"]["iqm"] == 10.5
     # first logged difficulty >= 6; seed 0's minutes include its 1 minute of demonstrations
     assert m["minutes_to_difficulty_6"]["per_seed"] == {"0": 3.0, "1": 4.0, "2": 5.0, "3": None}
     assert m["frames_to_difficulty_6"]["per_seed"] == {"0": 3000, "1": 5000, "2": 8000, "3": None}

@@ -18,6 +18,9 @@ subfolders are runs (a Hydra multirun dir). The runs must share their training c
   ``demos.json`` (planned and cloned before the first event), so they count from the run's start
   as docs/training.md does (a resumed run's pause between sessions does not count:
   :func:`truckrl.viz.curves.load_scalars`);
+* ``minutes_to_quality``: minutes from the run's start to its ``quality_reached`` (training's
+  held-out check first at or above ``log.quality_target`` at ``log.quality_difficulty``; the
+  ``quality/reached_minutes`` scalar; null: never);
 * ``final_difficulty``: the curriculum difficulty of its last.pt.
 
 Across seeds: the IQM and a 95 % percentile bootstrap interval of each (a seed that never
@@ -58,10 +61,12 @@ UNITS = {
     "heldout_success": "fraction of held-out scenes",
     "minutes_to_difficulty_6": "min (wall clock from the run's start, demonstrations included)",
     "frames_to_difficulty_6": "frames",
+    "minutes_to_quality": "min (wall clock from the run's start to quality_reached: held-out "
+    "success >= log.quality_target at log.quality_difficulty)",
     "final_difficulty": "curriculum difficulty",
 }
 #: Metrics whose null means "never" (a censored time): infinite for the IQM and interval.
-NEVER_IS_INFINITE = ("minutes_to_difficulty_6", "frames_to_difficulty_6")
+NEVER_IS_INFINITE = ("minutes_to_difficulty_6", "frames_to_difficulty_6", "minutes_to_quality")
 #: Scalars drawn by ``plot=``: TensorBoard tag -> panel title, y range.
 CURVES = {
     "curriculum/difficulty": ("curriculum difficulty", (0.0, None)),
@@ -254,13 +259,21 @@ def first_arrival(run: Run, level: float = TARGET_DIFFICULTY) -> tuple[float | N
     return None, None
 
 
+def quality_minutes(run: Run) -> float | None:
+    """Minutes from the run's start to its ``quality_reached`` (the ``quality/reached_minutes``
+    scalar that training logs once, :class:`truckrl.rl.progress.Quality`); None if never."""
+    q = run.scalars.get("quality/reached_minutes")
+    return None if q is None or len(q) == 0 else float(q[0][2])
+
+
 def per_seed_figures(run: Run, heldout: dict) -> dict[str, float | None]:
-    """The four metrics of one run (:data:`UNITS`)."""
+    """The metrics of one run (:data:`UNITS`)."""
     minutes, frames = first_arrival(run)
     return {
         "heldout_success": heldout["success"],
         "minutes_to_difficulty_6": minutes,
         "frames_to_difficulty_6": frames,
+        "minutes_to_quality": quality_minutes(run),
         "final_difficulty": run.final_difficulty,
     }
 
