@@ -11,8 +11,8 @@ Measured with a uniformly random policy (``action_spec.rand()``), resets include
 * optionally (``gym=true``) the Gymnasium door beside each batched row:
   ``gymnasium.make_vec(<default task's id>, num_envs=N)`` (:mod:`truckrl.gym`, numpy arrays out,
   random numpy actions in) and the TorchRL row measured ``repeats`` times each, alternating,
-  in the same run; the rows carry the medians and ``x torchrl``, the Gymnasium row's median over
-  the TorchRL row's.
+  in the same run; the rows carry the medians and ``x torchrl``, the median over the pairs of
+  the Gymnasium run's env-steps/s over the TorchRL run's just before it.
 
 Two other sections replace those rows when asked for (both may be given):
 
@@ -314,7 +314,10 @@ def _throughput_rows(args: EnvBenchConfig, compiled: bool, rows: list[dict]) -> 
             sps = statistics.median(r[0] for r in runs)
             _record(rows, layout, 1, n, compiled, sps, runs[0][1])
             rows[-1]["runs"] = [r[0] for r in runs]
-        rows[-1]["x torchrl"] = rows[-1]["steps/s"] / rows[-2]["steps/s"]
+        # each gym run over the TorchRL run just before it, then the median: robust to the
+        # load drifting during the measurement, where a ratio of the two medians is not
+        pairs = [g[0] / t[0] for t, g in zip(torchrl_runs, gym_runs, strict=True)]
+        rows[-1]["x torchrl"] = statistics.median(pairs)
         print(f"  gym / torchrl at N={n}: {rows[-1]['x torchrl']:.3f}", flush=True)
     for total in args.parallel_envs:
         per = max(1, total // args.workers)
