@@ -211,6 +211,20 @@ def test_a_vehicle_yields_at_a_crossing_while_another_is_in_it():
     assert max(float(t.s[0, 1]) for t in after) > 30.0 + 5.0
 
 
+def test_at_an_open_road_end_a_vehicle_leaves_and_reappears_on_its_home_lane():
+    net, cfg = straight(40.0), TrafficConfig()
+    tr = place_vehicles(net, cfg, *(t.unsqueeze(0) for t in two(0, 30.0, 4.0, 1.8, 10.0)))
+    states = rollout(net, cfg, tr, 60)
+    gone = [k for k, t in enumerate(states) if bool(t.waiting[0, 0])]
+    assert gone, "it never left"
+    k = gone[0]
+    assert float(states[k - 1].s[0, 0]) > 40.0 - 10.0 * DT  # it left from the road end
+    assert not traffic_segments(states[k])[1].any()  # off the road: no outline
+    back = states[k + 1]  # the start was clear: it is back, at rest, its rear on the road start
+    assert not bool(back.waiting[0, 0]) and int(back.lane[0, 0]) == 0
+    assert float(back.s[0, 0]) == pytest.approx(2.0) and float(back.v[0, 0]) == 0.0
+
+
 def test_lidar_sees_a_car_and_touching_one_collides():
     w = 9.0
     net = straight(60.0, w)
