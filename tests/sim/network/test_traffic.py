@@ -12,17 +12,25 @@ import pytest
 import torch
 
 from truckrl.config.fields import ConfigError
-from truckrl.sim import VehicleConfig, lidar_scan, sample_vehicle_params, truck_collides
+from truckrl.sim import (
+    VehicleConfig,
+    lidar_scan,
+    sample_vehicle_params,
+    truck_boxes,
+    truck_collides,
+)
 from truckrl.sim.network import NetworkConfig, random_network
 from truckrl.sim.network.layout import network_from_blocks
 from truckrl.sim.network.traffic import (
     TrafficConfig,
+    ego_boxes,
     place_vehicles,
     spawn_traffic,
     step_traffic,
     traffic_segments,
     with_traffic,
 )
+from truckrl.sim.vehicle import trailer_rear_offset
 
 DT = 0.1
 
@@ -91,11 +99,11 @@ def lane_gaps(net, tr) -> np.ndarray:
     return np.where(same & (d > 0), gap, np.inf).min(-1)
 
 
-def rollout(net, cfg, tr, steps):
-    """The traffic after each of ``steps`` steps."""
+def rollout(net, cfg, tr, steps, ego=None):
+    """The traffic after each of ``steps`` steps (``ego``: the truck's boxes)."""
     out = []
     for _ in range(steps):
-        tr = step_traffic(tr, cfg, DT)
+        tr = step_traffic(tr, cfg, DT, ego)
         out.append(tr)
     return out
 
@@ -180,6 +188,20 @@ def test_a_follower_stops_behind_a_stopped_leader():
     assert cfg.min_gap - 1e-3 <= gap <= cfg.min_gap + 0.3
     assert float(end.v[0, 0]) < 0.05
     assert max(float(t.v[0, 0]) for t in states) > 4.0  # it drove there
+
+
+def test_a_vehicle_stops_behind_the_ego_truck_standing_on_its_lane():
+    w = 9.0
+    net, cfg = straight(60.0, w), TrafficConfig()
+    params = sample_vehicle_params(VehicleConfig(), 1, torch.Generator().manual_seed(0))
+    pose = torch.tensor([[40.0, -0.25 * w, 0.0, 0.0]])  # on lane 0, facing along it
+    tractor, trailer, _ = truck_boxes(pose, params)
+    ego = ego_boxes(tractor, trailer)
+    tail = 40.0 - float(trailer_rear_offset(params)[0])  # the trailer's rear end (x)
+    tr = place_vehicles(net, cfg, *(t.unsqueeze(0) for t in two(0, 5.0, 4.0, 1.8, 10.0)))
+    end = rollout(net, cfg, tr, 300, ego)[-1]
+    gap = tail - (float(end.s[0, 0]) + 2.0)
+    assert cfg.min_gap - 1e-3 <= gap <= cfg.min_gap + 0.3 and float(end.v[0, 0]) < 0.05
 
 
 def test_a_vehicle_yields_at_a_crossing_while_another_is_in_it():
