@@ -5,7 +5,8 @@ median) emit curbs as segments, lane centre-lines as metadata, sockets (road end
 footprint; :mod:`~truckrl.sim.network.compose` joins them socket to socket into networks of ``K``
 blocks with overlap rejection, batched over networks, in the ``segments``/``mask``/``kind``
 layout the env's collision and LiDAR read unchanged; :mod:`~truckrl.sim.network.layout` reads a
-network from a YAML list of blocks. Pure torch: the geometry lives in the sim layer because a
+network from a YAML list of blocks; :mod:`~truckrl.sim.network.traffic` moves cars and trucks
+along the lanes and appends their outlines to the scene. Pure torch: the geometry lives in the sim layer because a
 folder under ``truckrl/tasks/`` is a task (found by :func:`truckrl.tasks.task_names`) and the
 ``network`` task is not written yet.
 """
@@ -13,6 +14,16 @@ folder under ``truckrl/tasks/`` is a task (found by :func:`truckrl.tasks.task_na
 from truckrl.sim.network.blocks import GENERATORS, PARAM_NAMES, Block, place, slot_sizes
 from truckrl.sim.network.compose import Network, compact, random_network, rects_overlap
 from truckrl.sim.network.config import BLOCK_NAMES, NetworkConfig, arc_pieces
+from truckrl.sim.network.traffic import (
+    Traffic,
+    TrafficConfig,
+    ego_boxes,
+    place_vehicles,
+    spawn_traffic,
+    step_traffic,
+    traffic_segments,
+    with_traffic,
+)
 
 __all__ = [
     "BLOCK_NAMES",
@@ -21,10 +32,18 @@ __all__ = [
     "Block",
     "Network",
     "NetworkConfig",
+    "Traffic",
+    "TrafficConfig",
     "arc_pieces",
     "compact",
+    "ego_boxes",
     "place",
+    "place_vehicles",
     "random_network",
     "rects_overlap",
     "slot_sizes",
+    "spawn_traffic",
+    "step_traffic",
+    "traffic_segments",
+    "with_traffic",
 ]
