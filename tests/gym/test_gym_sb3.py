@@ -110,8 +110,10 @@ def _example():
     return module
 
 
-#: SB3 PPO's frame budget to difficulty 2 (see examples/sb3_ppo.py for the recipe).
-SB3_FRAMES = 600_000
+#: SB3 PPO's frame budget to difficulty 2 (examples/sb3_ppo.py's recipe, 1 torch thread): seed 0
+#: was promoted to 0.5 / 1 / 1.5 / 2 at 39,296 / 64,256 / 86,528 / 108,032 frames (51 s on the
+#: loaded 2-core VM); the budget leaves a margin of nearly 3x for other seeds and versions.
+SB3_FRAMES = 300_000
 
 
 @pytest.mark.slow
