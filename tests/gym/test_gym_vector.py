@@ -194,3 +194,12 @@ def test_render_draws_the_bev_frame():
     env = gymnasium.make(ID, render_mode="rgb_array")
     env.reset(seed=0)
     assert env.render().shape == (640, 640, 3)
+
+
+def test_register_a_task_outside_the_package():
+    """tests/tasks/reach, a task folder truckrl never names, appends one feature (27)."""
+    id = truckrl.gym.register("tests.tasks.reach")
+    assert id == "truckrl/Reach-v0"
+    venv = gymnasium.make_vec(id, num_envs=2, seed=0)
+    obs, _ = venv.reset()
+    assert venv.env.config.task.name == "tests.tasks.reach" and obs["observation"].shape == (2, 27)
