@@ -32,78 +32,15 @@ KL divergence.
 from __future__ import annotations
 
 import argparse
-import math
 import time
 from typing import Any
 
-import numpy as np
 import torch
 from stable_baselines3 import PPO
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecMonitor
 
-from truckrl.gym.sb3 import TruckSB3VecEnv
+from truckrl.gym.sb3 import PPO_KWARGS, QUICK_OVERRIDES, CurriculumCallback, TruckSB3VecEnv
 from truckrl.rl.curriculum import Curriculum, CurriculumConfig
-
-#: Per-task env overrides of experiment=quick (truckrl/conf/experiment/quick.yaml and the
-#: task's train_scenes/quick_<task>.yaml); other tasks run with their defaults.
-QUICK_OVERRIDES: dict[str, dict[str, Any]] = {
-    "intersection": {
-        "task.scene.crossing_prob": 0.0,
-        "task.reward.progress": 0.2,
-        "task.reward.time": -0.005,
-    },
-}
-
-#: PPO settings of experiment=quick in SB3's names (ppo/fast.yaml, quick.yaml, PPOConfig and
-#: ModelConfig defaults for the rest).
-PPO_KWARGS: dict[str, Any] = {
-    "n_steps": 32,
-    "batch_size": 1024,
-    "n_epochs": 5,
-    "learning_rate": 3e-4,
-    "gamma": 0.998,
-    "gae_lambda": 0.95,
-    "clip_range": 0.2,
-    "ent_coef": 0.005,
-    "vf_coef": 0.5,
-    "policy_kwargs": {"net_arch": [128, 64], "log_std_init": math.log(0.5)},
-}
-
-
-class CurriculumCallback(BaseCallback):
-    """Feeds each step's finished episodes (success and the difficulty they were judged at,
-    from SB3's ``infos``) to a :class:`~truckrl.rl.curriculum.Curriculum`; on a promotion it
-    sets the env's difficulty (``env_method("set_difficulty", d)``). Stops training once the
-    difficulty reaches ``stop_difficulty`` (``None``: never).
-
-    Attributes:
-        promotions: ``[(difficulty, frames)]``, one per promotion.
-    """
-
-    def __init__(self, curriculum: Curriculum, stop_difficulty: float | None = None) -> None:
-        super().__init__()
-        self.curriculum = curriculum
-        self.stop_difficulty = stop_difficulty
-        self.promotions: list[tuple[float, int]] = []
-
-    def _on_training_start(self) -> None:
-        self.training_env.env_method("set_difficulty", self.curriculum.difficulty)
-
-    def _on_step(self) -> bool:
-        ended = np.flatnonzero(self.locals["dones"])
-        if ended.size:
-            infos = self.locals["infos"]
-            success = torch.tensor([infos[i]["success"] for i in ended])
-            judged_at = torch.tensor([infos[i]["difficulty"] for i in ended])
-            if self.curriculum.update(success, judged_at):
-                d = self.curriculum.difficulty
-                self.training_env.env_method("set_difficulty", d)
-                self.promotions.append((d, self.num_timesteps))
-                self.logger.record("curriculum/difficulty", d)
-                print(f"difficulty {d:g} at {self.num_timesteps:,} frames", flush=True)
-        stop = self.stop_difficulty
-        return stop is None or self.curriculum.difficulty < stop
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:

@@ -24,14 +24,22 @@ repeat the result per truck, and take no ``indices`` but all of them
 (``env_method("set_difficulty", d)`` sets every truck's difficulty). ``seed(s)`` seeds the
 batch's one scene generator with ``s`` at the next ``reset()``. ``render()`` and
 ``get_images()`` draw the first ``render_envs`` trucks.
+
+The PPO recipe that learns on it (``examples/sb3_ppo.py``, ``truckrl bench trainers``):
+:data:`PPO_KWARGS` (experiment=quick's numbers in SB3's names), :data:`QUICK_OVERRIDES` (its
+env overrides per task) and :class:`CurriculumCallback` (the paper's curriculum from SB3's
+step infos), with the steering-angle control (``docs/gymnasium.md``).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+import torch
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
 from truckrl.gym.vector import TruckVectorEnv
@@ -117,3 +125,67 @@ class TruckSB3VecEnv(VecEnv):
 
     def get_images(self) -> Sequence[np.ndarray | None]:
         return list(self.venv.render() or ())
+
+
+# ------------------------------------------------------------------ the PPO recipe
+#: Per-task env overrides of experiment=quick (truckrl/conf/experiment/quick.yaml and the
+#: task's train_scenes/quick_<task>.yaml); other tasks run with their defaults.
+QUICK_OVERRIDES: dict[str, dict[str, Any]] = {
+    "intersection": {
+        "task.scene.crossing_prob": 0.0,
+        "task.reward.progress": 0.2,
+        "task.reward.time": -0.005,
+    },
+}
+
+#: PPO settings of experiment=quick in SB3's names (ppo/fast.yaml, quick.yaml, PPOConfig and
+#: ModelConfig defaults for the rest).
+PPO_KWARGS: dict[str, Any] = {
+    "n_steps": 32,
+    "batch_size": 1024,
+    "n_epochs": 5,
+    "learning_rate": 3e-4,
+    "gamma": 0.998,
+    "gae_lambda": 0.95,
+    "clip_range": 0.2,
+    "ent_coef": 0.005,
+    "vf_coef": 0.5,
+    "policy_kwargs": {"net_arch": [128, 64], "log_std_init": math.log(0.5)},
+}
+
+
+class CurriculumCallback(BaseCallback):
+    """Feeds each step's finished episodes (success and the difficulty they were judged at,
+    from SB3's ``infos``) to a curriculum (:class:`truckrl.rl.curriculum.Curriculum` or any
+    object with its ``difficulty`` attribute and ``update(success [K], difficulty [K]) -> bool``
+    method); on a promotion it
+    sets the env's difficulty (``env_method("set_difficulty", d)``). Stops training once the
+    difficulty reaches ``stop_difficulty`` (``None``: never).
+
+    Attributes:
+        promotions: ``[(difficulty, frames)]``, one per promotion.
+    """
+
+    def __init__(self, curriculum: Any, stop_difficulty: float | None = None) -> None:
+        super().__init__()
+        self.curriculum = curriculum
+        self.stop_difficulty = stop_difficulty
+        self.promotions: list[tuple[float, int]] = []
+
+    def _on_training_start(self) -> None:
+        self.training_env.env_method("set_difficulty", self.curriculum.difficulty)
+
+    def _on_step(self) -> bool:
+        ended = np.flatnonzero(self.locals["dones"])
+        if ended.size:
+            infos = self.locals["infos"]
+            success = torch.tensor([infos[i]["success"] for i in ended])
+            judged_at = torch.tensor([infos[i]["difficulty"] for i in ended])
+            if self.curriculum.update(success, judged_at):
+                d = self.curriculum.difficulty
+                self.training_env.env_method("set_difficulty", d)
+                self.promotions.append((d, self.num_timesteps))
+                self.logger.record("curriculum/difficulty", d)
+                print(f"difficulty {d:g} at {self.num_timesteps:,} frames", flush=True)
+        stop = self.stop_difficulty
+        return stop is None or self.curriculum.difficulty < stop
