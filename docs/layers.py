@@ -29,6 +29,7 @@ ORDER = (
     "api",
     "rl",
     "planning",
+    "gym",
     "evaluation",
     "env",
     "viz",

@@ -12,7 +12,7 @@ spec                        the policy
                             (:class:`OnnxPolicy`); env config and difficulty from its model card
                             (metadata key ``truckrl``), or, in a file without one, the task's
                             default env
-``planner``                 the CEM planner baseline (:mod:`truckrl.planning`): no actor here, the
+``planner``                 the CEM planner baseline (``truckrl.planning``): no actor here, the
                             commands drive it themselves
 ``module:function``         ``function`` of the importable ``module`` (the working directory is
                             searched too) is a factory: called with the keyword arguments it

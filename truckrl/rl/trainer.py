@@ -11,7 +11,7 @@ PPO and its demonstrations, curriculum, collector, logger. One :meth:`~Trainer.i
 curriculum in start order (:mod:`truckrl.rl.cohorts`; a promotion reaches every worker before the
 next collection), runs the PPO update and logs to ``<run_dir>/tb``; videos, held-out checks and
 checkpoints follow when due. The first held-out check that meets ``log.quality_target`` at
-``log.quality_difficulty`` logs ``quality_reached`` (:class:`~truckrl.rl.progress.Quality`; with
+``log.quality_difficulty`` logs ``quality_reached`` (``truckrl.rl.progress.Quality``; with
 ``stop_on_quality`` the run stops there).
 """
 
