@@ -158,6 +158,9 @@ def run(args: PlanConfig) -> dict:
     seconds = time.perf_counter() - t0
     out, rows = report(args, env_cfg, loaded, results, tolerance, errors)
     out["seconds"] = seconds
+    from truckrl.cli import provenance
+
+    out["provenance"] = provenance(args.device)  # the docs' tables print it under the figures
     output = Path(args.out) if args.out else default_output()
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(json.dumps(out, default=_jsonable) + "\n")
