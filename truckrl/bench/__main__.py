@@ -17,6 +17,7 @@ BENCHMARKS: dict[str, str] = {
     "lidar": "truckrl.bench.lidar",
     "env": "truckrl.bench.env",
     "train": "truckrl.bench.train",
+    "trainers": "truckrl.bench.trainers",
 }
 PROG = "truckrl bench"
 
