@@ -116,7 +116,8 @@ def write_json(name: str, payload: dict[str, Any], out: str | Path | None = None
     path.parent.mkdir(parents=True, exist_ok=True)
     from truckrl.cli import provenance
 
-    device = str(payload.get("device", "cpu"))
+    # the device measured: the payload's own, or its command's (bench env keeps it in "args")
+    device = str(payload.get("device") or payload.get("args", {}).get("device") or "cpu")
     record = {
         "benchmark": name,
         "time": stamp,
