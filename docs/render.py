@@ -17,6 +17,9 @@ Kinds of file, told apart by their keys:
 * ``"benchmark": "env"`` (``truckrl bench env``): env-steps/s per layout, eager and compiled.
 * ``"benchmark": "train"`` (``truckrl bench train``): the median training iteration and its parts.
 * ``"benchmark": "lidar"`` (``truckrl bench lidar``): time per scan (``""``), scans/s (``-scans``).
+* ``"benchmark": "trainers"`` (``truckrl bench trainers``): one row per trainer and seed, by
+  trainer: frames in the budget, frames/s, difficulty reached, held-out success at the fixed
+  difficulty and at the one reached.
 * ``"kind": "quality"``: minutes to a good policy, one row per training run: minutes and frames
   to difficulty 6, the best held-out check there, when the check first met the target
   (``quality_reached``) or that it did not before the run stopped, and the final checkpoint's
@@ -179,6 +182,7 @@ BENCH_KEYS = {
     ),
     "train": ("iterations", "warmup"),
     "lidar": ("quick", "beams", "segments", "envs", "device", "compile"),
+    "trainers": ("minutes", "seeds", "trainers", "task", "control", "envs", "episodes"),
 }
 
 
@@ -424,19 +428,42 @@ def quality_tables(doc: dict[str, Any]) -> dict[str, Table]:
     return {"": (header, rows)}
 
 
+def trainers_tables(doc: dict[str, Any]) -> dict[str, Table]:
+    """``bench trainers``: one row per run, grouped by trainer in the order the record names
+    them, seeds ascending; a failed run reads "failed" with its exit status."""
+    args = doc.get("args", {})
+    fixed = args.get("eval_difficulty")
+    header = ["trainer", "seed", "frames", "frames/s", "difficulty reached",
+              f"held-out success at {fixed:g}" if fixed is not None else "held-out success",
+              "held-out success at the difficulty reached"]  # fmt: skip
+    order = {t: i for i, t in enumerate(args.get("trainers", ()))}
+    runs = sorted(doc["rows"], key=lambda r: (order.get(r["trainer"], len(order)), r["seed"]))
+    rows = []
+    for r in runs:
+        if "error" in r:
+            rows.append([r["trainer"], str(r["seed"]), f"failed ({r['error']})", "", "", "", ""])
+            continue
+        rows.append([r["trainer"], str(r["seed"]), f"{r['frames']:,}", num(r["frames/s"]),
+                     f"{r['difficulty']:g}", pct(r["success_fixed"]),
+                     pct(r["success_reached"])])  # fmt: skip
+    return {"": (header, rows)}
+
+
 def kind_of(doc: dict[str, Any]) -> Callable[[dict[str, Any]], dict[str, Table]]:
     """The table maker for a JSON document, by its keys (see the module doc)."""
     if doc.get("kind") == "seeds":
         return seeds_tables
     if doc.get("kind") == "quality":
         return quality_tables
-    makers = {"env": env_tables, "train": train_tables, "lidar": lidar_tables}
+    makers = {"env": env_tables, "train": train_tables, "lidar": lidar_tables,
+              "trainers": trainers_tables}  # fmt: skip
     if doc.get("benchmark") in makers:
         return makers[doc["benchmark"]]
     if "success_rate" in doc and "categories" in doc:
         return eval_tables
     raise ValueError(
-        "not a seeds aggregate, a quality record, a bench env|train|lidar record or an evaluation"
+        "not a seeds aggregate, a quality record, a bench env|train|lidar|trainers record or an "
+        "evaluation"
     )
 
 
