@@ -27,7 +27,7 @@ lint: $(STAMP)
 
 test: lint
 	SDL_VIDEODRIVER=dummy $(BIN)/python -m pytest $(ARGS)
-	$(BIN)/python -m pytest -m wheel
+	$(BIN)/python -m pytest -m wheel -n 0
 
 format: $(STAMP)
 	$(BIN)/ruff format .
