@@ -102,8 +102,6 @@ def parse(argv: list[str]) -> TrainersBenchConfig:
         fail(f"task = {opts.task!r} is not one of {list(task_names())}")
     if opts.control not in controls():
         fail(f"control = {opts.control!r} is not one of {controls()}")
-    if opts.envs * STEPS % MINIBATCHES:
-        fail(f"envs = {opts.envs} must be a multiple of {MINIBATCHES} (4 minibatches per update)")
     if opts.out is not None and Path(opts.out).suffix != ".json" and Path(opts.out).is_file():
         fail(f"out = {opts.out!r}: is a file, not a .json path or a folder")
     return opts
