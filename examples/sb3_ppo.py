@@ -39,7 +39,8 @@ import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecMonitor
 
-from truckrl.gym.sb3 import PPO_KWARGS, QUICK_OVERRIDES, CurriculumCallback, TruckSB3VecEnv
+from truckrl.bench.trainers import quick_env_overrides
+from truckrl.gym.sb3 import PPO_KWARGS, CurriculumCallback, TruckSB3VecEnv
 from truckrl.rl.curriculum import Curriculum, CurriculumConfig
 
 
@@ -63,9 +64,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parser.parse_args(argv)
 
     torch.set_num_threads(args.threads)
-    longitudinal, _, lateral = args.control.partition("_")
-    control = {"longitudinal": longitudinal, "lateral": lateral}
-    overrides = {**QUICK_OVERRIDES.get(args.task, {}), "control": control}
+    overrides = quick_env_overrides(args.task, args.control)  # experiment=quick's scenes
     env = VecMonitor(TruckSB3VecEnv(num_envs=args.envs, task=args.task, **overrides))
     curriculum = Curriculum(CurriculumConfig())  # the paper's rule
     callback = CurriculumCallback(curriculum, args.stop_difficulty)

@@ -10,7 +10,7 @@ one table (trainer, seed, frames, frames/s, difficulty reached, held-out success
 the JSON record (``benchmark: "trainers"``).
 
 What is equal: the task and its experiment=quick env (for the intersection task: straight
-roads, the larger progress reward and the cost per step; :data:`truckrl.gym.sb3.QUICK_OVERRIDES`),
+roads, the larger progress reward and the cost per step; :func:`quick_env_overrides`),
 the control (``control``, default ``accel_angle``: steering by angle, the one SB3 PPO learns
 with, ``docs/gymnasium.md``), ``envs`` trucks x 32 steps per update, 4 minibatches, 5 epochs,
 lr 3e-4 at the start, gamma 0.998, GAE lambda 0.95, clip 0.2, entropy weight 0.005, the
@@ -44,6 +44,7 @@ from typing import Any
 
 from truckrl.bench.report import print_table, write_json
 from truckrl.config.fields import param, validate
+from truckrl.tasks.config import DEFAULT_TASK
 
 #: The trainers, in the table's order.
 TRAINERS = ("truckrl", "sb3", "cleanrl")
@@ -65,7 +66,7 @@ class TrainersBenchConfig:
         (0, 1), lo=0, hi=2**31 - 1, doc="seeds; one run per trainer each"
     )
     trainers: tuple[str, ...] = param(TRAINERS, choices=TRAINERS, doc="trainers to run")
-    task: str = param("intersection", doc="task folder (truckrl tools configs env lists them)")
+    task: str = param(DEFAULT_TASK, doc="task folder (truckrl tools configs env lists them)")
     control: str = param(
         "accel_angle",
         doc="LONGITUDINAL_LATERAL control of all runs (truckrl/conf/control/; SB3 PPO learns "
@@ -108,15 +109,33 @@ def parse(argv: list[str]) -> TrainersBenchConfig:
 
 
 # ---------------------------------------------------------------------------- one run (worker)
+def _dotted(node: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A nested config mapping as ``{"a.b.c": value}``."""
+    out: dict[str, Any] = {}
+    for k, v in node.items():
+        key = f"{prefix}{k}"
+        out.update(_dotted(v, key + ".") if isinstance(v, dict) else {key: v})
+    return out
+
+
+def quick_env_overrides(task: str, control: str) -> dict[str, Any]:
+    """The env fields where ``truckrl train experiment=quick task=TASK control=CONTROL`` differs
+    from the task's plain env config (``make_env``'s), as dotted keys for ``make_env``: read from the composed
+    configs (``conf/experiment/quick.yaml`` and the task's ``train_scenes/quick_<task>.yaml``),
+    so the Gymnasium/SB3 runs train on the scenes and rewards truckrl's run does."""
+    from truckrl.bench.train import compose_train_config
+    from truckrl.config.fields import build
+    from truckrl.tasks import EnvConfig
+
+    quick = compose_train_config(["experiment=quick", f"task={task}", f"control={control}"])
+    plain = build(EnvConfig, {"task": {"name": task}}, "env")  # make_env's starting point
+    a, b = _dotted(dataclasses.asdict(quick.env)), _dotted(dataclasses.asdict(plain))
+    return {k: v for k, v in a.items() if v != b.get(k)}
+
+
 def env_overrides(task: str, control: str) -> dict[str, Any]:
     """The env overrides of every run: experiment=quick's for ``task`` and the control."""
-    from truckrl.gym.sb3 import QUICK_OVERRIDES
-
-    longitudinal, _, lateral = control.partition("_")
-    return {
-        **QUICK_OVERRIDES.get(task, {}),
-        "control": {"longitudinal": longitudinal, "lateral": lateral},
-    }
+    return quick_env_overrides(task, control)
 
 
 def _train_truckrl(

@@ -26,8 +26,8 @@ batch's one scene generator with ``s`` at the next ``reset()``. ``render()`` and
 ``get_images()`` draw the first ``render_envs`` trucks.
 
 The PPO recipe that learns on it (``examples/sb3_ppo.py``, ``truckrl bench trainers``):
-:data:`PPO_KWARGS` (experiment=quick's numbers in SB3's names), :data:`QUICK_OVERRIDES` (its
-env overrides per task) and :class:`CurriculumCallback` (the paper's curriculum from SB3's
+:data:`PPO_KWARGS` (experiment=quick's numbers in SB3's names; its env overrides:
+``truckrl.bench.trainers.quick_env_overrides``) and :class:`CurriculumCallback` (the paper's curriculum from SB3's
 step infos), with the steering-angle control (``docs/gymnasium.md``).
 """
 
@@ -128,16 +128,6 @@ class TruckSB3VecEnv(VecEnv):
 
 
 # ------------------------------------------------------------------ the PPO recipe
-#: Per-task env overrides of experiment=quick (truckrl/conf/experiment/quick.yaml and the
-#: task's train_scenes/quick_<task>.yaml); other tasks run with their defaults.
-QUICK_OVERRIDES: dict[str, dict[str, Any]] = {
-    "intersection": {
-        "task.scene.crossing_prob": 0.0,
-        "task.reward.progress": 0.2,
-        "task.reward.time": -0.005,
-    },
-}
-
 #: PPO settings of experiment=quick in SB3's names (ppo/fast.yaml, quick.yaml, PPOConfig and
 #: ModelConfig defaults for the rest).
 PPO_KWARGS: dict[str, Any] = {
