@@ -13,6 +13,7 @@ from tensordict.nn import TensorDictModule
 import truckrl.evaluate as evaluate_module
 import truckrl.evaluation.rollout as rollout_module
 from tests.conftest import run_cli
+from tests.reliability.harness import assert_one_line_error, run_main
 from truckrl.config.fields import ConfigError
 from truckrl.config.schemas import EvaluateConfig
 from truckrl.evaluate import evaluate
@@ -193,17 +194,15 @@ def test_env_overrides_merge_into_the_rest():
 
 
 @pytest.mark.e2e
-def test_unwritable_output_is_one_line_before_any_episode(tiny_checkpoint, tmp_path):
+def test_unwritable_output_is_one_line_before_any_episode(tiny_checkpoint, tmp_path, capsys):
     run, _, _ = tiny_checkpoint
     blocker = tmp_path / "a_file"
     blocker.write_text("")
     out = blocker / "sub" / "eval.json"  # its folder cannot be made, even by root
     args = [f"checkpoint={run}", "episodes=12", f"output={out}"]
-    proc = run_cli("evaluate", *args, f"hydra.run.dir={tmp_path}")
-    assert proc.returncode == 2
-    assert proc.stdout == ""  # no results: a late failure would print them first
-    assert proc.stderr.strip().startswith("error: output=") and str(out) in proc.stderr
-    assert len(proc.stderr.strip().splitlines()) == 1
+    r = run_main(capsys, "evaluate", *args, f"hydra.run.dir={tmp_path}")
+    assert r.out == ""  # no results: a late failure would print them first
+    assert assert_one_line_error(r, str(out)).startswith("error: output=")
 
 
 def test_output_is_checked_before_the_episodes_run(tiny_checkpoint, tmp_path, monkeypatch):
@@ -238,13 +237,11 @@ def test_late_write_failure_prints_the_results_first(
     assert not list(tmp_path.iterdir())  # no stray probe or temporary files
 
 
-@pytest.mark.e2e
-def test_missing_checkpoint_is_one_line(tmp_path):
-    proc = run_cli("evaluate", f"checkpoint={tmp_path / 'nope.pt'}", f"hydra.run.dir={tmp_path}")
-    assert proc.returncode == 2
-    assert "Traceback" not in proc.stderr
-    assert proc.stderr.strip().startswith("error:") and "nope.pt" in proc.stderr
-    assert len(proc.stderr.strip().splitlines()) == 1
+def test_missing_checkpoint_is_one_line(tmp_path, capsys):
+    r = run_main(
+        capsys, "evaluate", f"checkpoint={tmp_path / 'nope.pt'}", f"hydra.run.dir={tmp_path}"
+    )
+    assert_one_line_error(r, "nope.pt")
 
 
 def test_corrupt_checkpoint_raises_checkpoint_error(tiny_checkpoint, tmp_path):

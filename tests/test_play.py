@@ -18,6 +18,7 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from tests.conftest import TINY_TRAIN, compose_config, run_cli
+from tests.reliability.harness import assert_one_line_error, run_main
 from truckrl.cli import to_config
 from truckrl.config.fields import ConfigError, build
 from truckrl.config.schemas import PlayConfig
@@ -291,18 +292,14 @@ def test_policy_cli_records_video(run_dir, tmp_path):
 
 
 @pytest.mark.parametrize("kind", ["missing", "corrupt"])
-@pytest.mark.e2e
-def test_bad_checkpoint_is_one_line_and_exit_code_2(kind, tmp_path):
+def test_bad_checkpoint_is_one_line_and_exit_code_2(kind, tmp_path, capsys):
     path = tmp_path / "nonexistent.pt"
     if kind == "corrupt":
         path = tmp_path / "last.pt"
         path.write_bytes(b"PK\x03\x04 definitely not a torch file")
-    proc = run_cli("play", f"checkpoint={path}", "headless=true", f"hydra.run.dir={tmp_path}")
-    assert proc.returncode == 2
-    assert "Traceback" not in proc.stderr
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error:")
-    assert ("not found" if kind == "missing" else "cannot read") in lines[0]
+    args = [f"checkpoint={path}", "headless=true", f"hydra.run.dir={tmp_path}"]
+    r = run_main(capsys, "play", *args)
+    assert_one_line_error(r, "not found" if kind == "missing" else "cannot read")
 
 
 def test_bad_options_name_the_field(tmp_path):
