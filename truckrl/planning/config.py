@@ -16,6 +16,21 @@ class PlannerConfig:
     """Budget and shape of the CEM planner (:mod:`truckrl.planning.rollout` describes the
     parameters a candidate plans, :mod:`truckrl.planning.search` the search)."""
 
+    search: str = param(
+        "knots",
+        choices=("knots", "gears"),
+        doc="knots: smooth steering and speed set-points (module rollout); gears: a sequence "
+        "of forward / reverse legs along the task expert's paths (module gears; tasks that "
+        "reverse)",
+    )
+    gears_init_std: float = param(
+        0.25,
+        lo=0.0,
+        lo_open=True,
+        hi=10.0,
+        unit="-",
+        doc="search=gears: initial std around the expert's prior (the parameters span [-1, 1])",
+    )
     samples: int = param(256, lo=2, hi=1_000_000, unit="candidates", doc="per scene per iteration")
     iterations: int = param(12, lo=1, hi=100_000, unit="-", doc="CEM iterations per attempt")
     attempts: int = param(

@@ -24,6 +24,7 @@ from truckrl.config.fields import ConfigError, build
 from truckrl.env import TruckEnv
 from truckrl.evaluation.rollout import SCENE_INFO_ENTRIES, policy_actions
 from truckrl.planning.config import PlannerConfig
+from truckrl.planning.gears import GearPlanner
 from truckrl.planning.rollout import Planner, param_keys
 from truckrl.planning.scenes import held_out_states
 from truckrl.sim.vehicle import trailer_length
@@ -71,6 +72,18 @@ def replay(
     for q in errors:
         out[q.key] = shown(q, rec[q.key]).cpu()
     return out
+
+
+def make_planner(
+    env_cfg: EnvConfig | dict | None,
+    config: PlannerConfig | dict | None = None,
+    device: torch.device | str = "cpu",
+) -> Planner | GearPlanner:
+    """The planner ``config.search`` names: :class:`Planner` (``knots``) or
+    :class:`~truckrl.planning.gears.GearPlanner` (``gears``)."""
+    pc = build(PlannerConfig, config, "planner")
+    kind = GearPlanner if pc.search == "gears" else Planner
+    return kind(env_cfg, pc, device)
 
 
 def _replay_sequences(
@@ -160,7 +173,7 @@ def plan_states(
         the totals "rollouts", "plan_seconds"; with ``extra``, also "by_source" (above) and
         "solved_by_extra" ``[E]`` (the reported replay is the extra sequence's).
     """
-    planner = Planner(env_cfg, config, device)
+    planner = make_planner(env_cfg, config, device)
     e, horizon = states.batch_size[0], planner.horizon
     if extra is not None and (extra.dim() != 3 or extra.shape[0] != e or extra.shape[2] != 2):
         raise ValueError(f"extra must be [{e}, T, 2] action sequences, got {list(extra.shape)}")

@@ -136,6 +136,20 @@ class Planner:
         self.state_keys += self.task.error_keys
         self._step = compile_sim(self._step_fn, self.device) if pc.compile else self._step_fn
 
+    @property
+    def num_params(self) -> int:
+        """Planned numbers per candidate (:attr:`PlannerConfig.num_params`)."""
+        return self.config.num_params
+
+    def initial(self, attempt: int, arc: bool = False) -> tuple[Tensor, Tensor]:
+        """``(mean [P], std [P])`` an attempt starts from: 0, the speed knots at ``speed_mean``;
+        std ``arc_init_std`` with the steering prior on (``arc``), else ``init_std``."""
+        pc = self.config
+        mean = torch.zeros(pc.num_params, device=self.device)
+        mean[pc.steer_knots : pc.steer_knots + pc.speed_knots] = pc.speed_mean
+        std = pc.arc_init_std if arc else pc.init_std
+        return mean, torch.full((pc.num_params,), std, device=self.device)
+
     # ------------------------------------------------------------------ one step
     def _score(self, s: dict[str, Any], difficulty: Tensor) -> tuple[Tensor, Tensor]:
         """``(score, worst)`` ``[N]``: the largest error / tolerance ratio over the task's errors

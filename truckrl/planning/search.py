@@ -1,6 +1,7 @@
 """The cross-entropy method (CEM) over the planner's candidates, scene by scene (:func:`cem`).
 
-An *attempt* at a scene samples a diagonal Gaussian over the parameters (mean 0, speeds at
+An *attempt* at a scene samples a diagonal Gaussian over the parameters (its initial mean and std
+from the planner's ``initial(attempt, arc)``: for the knot planner mean 0, speeds at
 ``speed_mean``, std ``init_std``), clamped to ``[-1, 1]``; the best ``elite_frac`` of its
 population (which always holds its best candidate so far) give the next mean and std, blended
 with the old ones by ``smoothing`` and floored at ``min_std``. An attempt ends after
@@ -40,13 +41,10 @@ class _Job:
     """One CEM attempt at one scene: its Gaussian over the parameters and its best candidate."""
 
     def __init__(
-        self, scene: int, pc: PlannerConfig, device: torch.device, arc: bool = False
+        self, scene: int, pc: PlannerConfig, mean: Tensor, std: Tensor, arc: bool = False
     ) -> None:
         self.scene, self.pc, self.iters, self.arc = scene, pc, 0, arc
-        self.mean = torch.zeros(pc.num_params, device=device)
-        self.mean[pc.steer_knots : pc.steer_knots + pc.speed_knots] = pc.speed_mean
-        std = pc.arc_init_std if arc else pc.init_std
-        self.std = torch.full((pc.num_params,), std, device=device)
+        self.mean, self.std = mean, std
         self.best_x = self.mean.clone()
         self.best_cost = math.inf
 
@@ -90,21 +88,20 @@ class _Search:
             arc = pc.steer_prior == "arc" or (
                 pc.steer_prior == "alternate" and int(started[scene]) % 2 == 1
             )
-            self.jobs.append(_Job(scene, pc, self.dev, arc))
+            mean, std = self.planner.initial(int(started[scene]) - 1, arc)
+            self.jobs.append(_Job(scene, pc, mean, std, arc))
 
     def sample(self, owner: list[_Job], g: torch.Generator) -> Tensor:
         """``[slots * samples, P]`` candidates of the slots' attempts ``owner``."""
-        pc, slots, k = self.pc, len(owner), self.pc.samples
+        slots, k, p = len(owner), self.pc.samples, self.planner.num_params
         mean = torch.stack([j.mean for j in owner])
         std = torch.stack([j.std for j in owner])
-        xs = mean[:, None] + std[:, None] * torch.randn(
-            slots, k, pc.num_params, generator=g, device=self.dev
-        )
+        xs = mean[:, None] + std[:, None] * torch.randn(slots, k, p, generator=g, device=self.dev)
         xs = xs.clamp(-1.0, 1.0)
         for j, job in enumerate(owner):
             if job.iters > 0 and owner.index(job) == j:
                 xs[j, 0] = job.best_x  # elitism: the best candidate so far rides along
-        return xs.reshape(slots * k, pc.num_params)
+        return xs.reshape(slots * k, p)
 
     def learn(self, job: _Job, sel: Tensor, x: Tensor, acc: dict[str, Tensor], actions: Tensor):
         """Update attempt ``job`` and its scene from its rows ``sel`` of the batch's candidates

@@ -334,3 +334,109 @@ def demonstrations(
     states = held_out_states(env_cfg, episodes, seed, "cpu", difficulty=MAX_DIFFICULTY)
     samples, solved = driven_demos(env_cfg, states, difficulty)
     return solved, samples
+
+
+# ---------------------------------------------------------------- gear-sequence plans
+#: The task parameters of a gear plan (``planner.search=gears``, :mod:`truckrl.planning.gears`):
+#: (name, value at x = -1, at x = 0, at x = +1), piecewise linear. The ranges span :data:`GRID`
+#: and a margin around it; the rest are the driver's constants (its 0.85 of the branch depth,
+#: its 2.0 and 1.2 m/s), now planned.
+GEAR_TASK_PARAMS: tuple[tuple[str, float, float, float], ...] = (
+    ("lane_y", -1.8, 0.0, 1.8),  # m
+    ("arc_radius", 6.0, 12.0, 20.0),  # m
+    ("pass_margin", -2.0, 3.0, 9.0),  # m
+    ("exit_shift", 0.0, 3.0, 5.0),  # m
+    ("shift_until", 8.0, 20.0, 32.0),  # m
+    ("depth", 0.6, 0.85, 0.98),  # of the branch depth
+    ("forward_speed", 1.0, 2.0, 3.0),  # m/s
+    ("reverse_speed", 0.6, 1.2, 2.0),  # m/s
+)
+#: Vertices per leg path.
+GEAR_PATH_POINTS = 160
+
+
+def gear_prior() -> Tensor:
+    """``[A, 8]`` prior means of the gear plan's task parameters (:data:`GEAR_TASK_PARAMS`) in
+    ``[-1, 1]``: the scripted driver's :data:`DEMO_SETTINGS`, one per attempt in turn (the
+    driver's depth and speeds at their nominal values)."""
+    from truckrl.planning.gears import piecewise_inverse
+
+    names = [p[0] for p in GEAR_TASK_PARAMS]
+    rows = []
+    for lane_y, radius, margin, _look, shift, until in DEMO_SETTINGS:
+        value = {"lane_y": lane_y, "arc_radius": radius, "pass_margin": margin,
+                 "exit_shift": shift, "shift_until": until}  # fmt: skip
+        rows.append(
+            [
+                piecewise_inverse(value[n], *GEAR_TASK_PARAMS[j][1:]) if n in value else 0.0
+                for j, n in enumerate(names)
+            ]
+        )
+    return torch.tensor(rows)
+
+
+def gear_legs(start: TensorDict, x: Tensor) -> dict[str, Tensor]:
+    """The scripted turnaround's three legs as paths (:func:`truckrl.planning.gears`'s
+    contract), for candidates ``x [N, 8]`` (:data:`GEAR_TASK_PARAMS`) from road starts ``start
+    [N]``.
+
+    1. Forward: the tractor rear axle along the lane ``y = lane_y`` (the scene frame of
+       :class:`TurnaroundDriver`) until the trailer axle is ``pass_margin`` past where the
+       reverse arc starts.
+    2. Reverse: the trailer axle along :class:`TurnaroundDriver`'s path (back along the lane, an
+       arc of ``arc_radius`` onto the branch axis, up the axis) to ``depth`` of the branch depth
+       beyond the curb.
+    3. Forward: the tractor rear axle along the goal lane, ``exit_shift`` nearer the road's
+       centre until ``shift_until`` before the goal (a 3 m ramp), to the goal.
+
+    Returns:
+        ``{"gear" [N, 3], "speed" [N, 3] (m/s), "path" [N, 3, GEAR_PATH_POINTS, 2] (m, world)}``.
+    """
+    from truckrl.planning.gears import piecewise
+
+    v = {n: piecewise(x[:, j], lo, mid, hi) for j, (n, lo, mid, hi) in enumerate(GEAR_TASK_PARAMS)}
+    n, dev, m = x.shape[0], x.device, GEAR_PATH_POINTS
+    zero = torch.zeros(n, device=dev)
+    drv = TurnaroundDriver(start, v["lane_y"], v["arc_radius"], v["pass_margin"], 10.0)
+    p = start["params"]
+    hitch = p["kingpin_offset"] + p["trailer_wheelbase"]
+    q0 = drv.local(start["pose"])
+    s = torch.linspace(0.0, 1.0, m, device=dev)[None]
+    # 1: forward along the lane
+    x_end = torch.maximum(drv.x_arc + v["pass_margin"] + hitch, q0[:, 0] + 0.1)
+    leg1 = torch.stack(
+        (q0[:, :1] + s * (x_end - q0[:, 0])[:, None], v["lane_y"][:, None] + 0 * s), -1
+    )
+    # 2: reverse along the driver's path, cut at the planned depth
+    k = m // 4
+    xb = x_end - hitch + 5.0  # a little ahead of the trailer axle at the switch
+    tb = torch.linspace(0.0, 1.0, k, device=dev)[None]
+    back = torch.stack(
+        (xb[:, None] + tb * (drv.x_arc - xb)[:, None], v["lane_y"][:, None] + 0 * tb), -1
+    )
+    arc = drv.path[:, 120:240]
+    arc = arc[:, torch.linspace(0, 119, m - 2 * k, device=dev).round().long()]
+    a = start["route", "branch_angle"]
+    axis = torch.stack((a.cos(), a.sin()), -1)
+    deep = drv.half + v["depth"] * start["route", "branch_depth"]
+    up_len = ((deep - arc[:, -1, 1]) / a.sin().clamp_min(0.1)).clamp_min(0.5)
+    su = torch.linspace(0.0, 1.0, k + 1, device=dev)[None, 1:]
+    up = arc[:, -1:] + (up_len[:, None] * su)[..., None] * axis[:, None]
+    leg2 = torch.cat((back, arc, up), 1)
+    # 3: forward along the goal lane to the goal
+    gx, gy = drv.goal[:, 0], drv.goal[:, 1]
+    x0 = torch.maximum(gx + v["shift_until"] + 30.0, zero + 30.0)
+    xs = x0[:, None] + s * (gx - x0)[:, None]
+    ramp = ((xs - (gx + v["shift_until"])[:, None]) / 3.0).clamp(0.0, 1.0)
+    ys = gy[:, None] - (torch.sign(gy) * v["exit_shift"])[:, None] * ramp
+    leg3 = torch.stack((xs, ys), -1)
+    local = torch.stack((leg1, leg2, leg3), 1)  # [N, 3, M, 2] mirrored scene frame
+    c, sn = drv.heading.cos()[:, None, None], drv.heading.sin()[:, None, None]
+    lx, ly = local[..., 0], drv.side[:, None, None] * local[..., 1]
+    world = torch.stack((c * lx - sn * ly, sn * lx + c * ly), -1) + drv.origin[:, None, None]
+    ones = torch.ones(n, device=dev)
+    return {
+        "gear": torch.stack((ones, -ones, ones), -1),
+        "speed": torch.stack((v["forward_speed"], v["reverse_speed"], v["forward_speed"]), -1),
+        "path": world,
+    }
