@@ -6,9 +6,10 @@ footprint; :mod:`~truckrl.sim.network.compose` joins them socket to socket into 
 blocks with overlap rejection, batched over networks, in the ``segments``/``mask``/``kind``
 layout the env's collision and LiDAR read unchanged; :mod:`~truckrl.sim.network.layout` reads a
 network from a YAML list of blocks; :mod:`~truckrl.sim.network.traffic` moves cars and trucks
-along the lanes and appends their outlines to the scene. Pure torch: the geometry lives in the sim layer because a
-folder under ``truckrl/tasks/`` is a task (found by :func:`truckrl.tasks.task_names`) and the
-``network`` task is not written yet.
+along the lanes and appends their outlines to the scene. Pure torch: the geometry lives in the
+sim layer because a folder under ``truckrl/tasks/`` is a task (found by
+:func:`truckrl.tasks.task_names`); the task that drives routes through these networks is
+:mod:`truckrl.tasks.network`.
 """
 
 from truckrl.sim.network.blocks import GENERATORS, PARAM_NAMES, Block, place, slot_sizes

@@ -13,6 +13,9 @@ from dataclasses import dataclass
 
 from truckrl.config.fields import ConfigError, param, validate
 
+#: Where a network config sits in the env config (the ``network`` task's ``env.task.network``),
+#: the prefix of its fields in error messages.
+WHERE = "env.task.network"
 #: Block type names, indexed by the ``block_type`` values of a network.
 BLOCK_NAMES: tuple[str, ...] = (
     "straight",
@@ -154,35 +157,35 @@ class NetworkConfig:
     )
 
     def __post_init__(self) -> None:
-        validate(self, "network")
+        validate(self, WHERE)
         w_lo, w_hi = self.road_width
         if self.curve_radius[0] <= 0.5 * w_hi + 1.0:
             raise ConfigError(
-                f"network.curve_radius = {list(self.curve_radius)}: min must exceed "
+                f"{WHERE}.curve_radius = {list(self.curve_radius)}: min must exceed "
                 f"road_width max / 2 + 1 = {0.5 * w_hi + 1.0}"
             )
         if self.roundabout_radius[0] - 0.5 * w_hi < 2.0:
             raise ConfigError(
-                f"network.roundabout_radius = {list(self.roundabout_radius)}: min must be at "
+                f"{WHERE}.roundabout_radius = {list(self.roundabout_radius)}: min must be at "
                 f"least road_width max / 2 + 2 = {0.5 * w_hi + 2.0} (an island of radius >= 2 m)"
             )
         need = self.junction_extent() + 0.5 * self.clearance + self.socket_slack
         if self.junction_arm[0] <= need:
             raise ConfigError(
-                f"network.junction_arm = {list(self.junction_arm)}: min must exceed {need:.3f} "
+                f"{WHERE}.junction_arm = {list(self.junction_arm)}: min must exceed {need:.3f} "
                 "(the crossing's extent at the widest road and sharpest angle, plus "
                 "clearance / 2 + socket_slack)"
             )
         need = 0.5 * self.clearance + self.socket_slack
         if self.roundabout_arm[0] <= need:
             raise ConfigError(
-                f"network.roundabout_arm = {list(self.roundabout_arm)}: min must exceed "
+                f"{WHERE}.roundabout_arm = {list(self.roundabout_arm)}: min must exceed "
                 f"clearance / 2 + socket_slack = {need}"
             )
         need = 2.0 * (self.median_lead + self.median_taper)
         if self.median_length[0] <= need:
             raise ConfigError(
-                f"network.median_length = {list(self.median_length)}: min must exceed "
+                f"{WHERE}.median_length = {list(self.median_length)}: min must exceed "
                 f"2 (median_lead + median_taper) = {need}"
             )
 

@@ -49,6 +49,10 @@ from truckrl.sim.geometry import KIND_OBSTACLE, rectangle_segments
 from truckrl.sim.network.compose import Network
 from truckrl.sim.network.config import CROSSING, ROUNDABOUT, T_JUNCTION
 
+#: Where a traffic config sits in the env config (the ``network`` task's ``env.task.traffic``),
+#: the prefix of its fields in error messages.
+WHERE = "env.task.traffic"
+
 
 @dataclass
 class TrafficConfig:
@@ -105,9 +109,9 @@ class TrafficConfig:
     )
 
     def __post_init__(self) -> None:
-        validate(self, "traffic")
+        validate(self, WHERE)
         if self.max_vehicles > 0 and self.speed[1] <= 0.0:
-            raise ConfigError(f"traffic.speed = {list(self.speed)}: max must be > 0")
+            raise ConfigError(f"{WHERE}.speed = {list(self.speed)}: max must be > 0")
 
     def spacing(self) -> float:
         """Spawn slot pitch along a lane [m]: the longest vehicle plus ``min_gap`` plus 1 m."""

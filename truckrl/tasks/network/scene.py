@@ -1,0 +1,509 @@
+"""Episodes of the ``network`` task: a chain of link and junction blocks, a route along it
+through the junctions, start and goal poses on its lane centre-lines, and traffic.
+
+Everything is batched over episodes (tensor ops over all rows; the loops run over the chain's
+``K`` block indices, over redraw rounds and over the few block types, never over episodes), pure
+torch, with all randomness from one ``torch.Generator``.
+
+The chain
+---------
+``K = 2 J + 1`` blocks, ``J`` the most junctions any curriculum level routes through
+(:attr:`CurriculumConfig.junctions`): links ``L_0, J_1, L_1, ..., J_J, L_J`` alternate, a
+**link** (straight, curve or median: the ``network.block_types`` among them) entered at its
+socket 0 and left at its socket 1, a **junction** (crossing, T-junction or roundabout) entered
+at a random socket and left at a random other one. Blocks are drawn and joined by
+:func:`truckrl.sim.network.compose.grow` (overlap rejection as for random networks).
+
+The route
+---------
+The chain read from the start of ``L_0`` to the end of ``L_J``, on the right-hand lane (``w / 4``
+right of each road's centre-line in the direction of travel): on a link its forward lane; at a
+crossing or T-junction straight through, the lane; at a turn, the entry lane up to ``setback``
+before the corner where it meets the exit lane, a quadratic Bezier curve round the corner
+(control point the corner) and the exit lane on (the network has no turning lanes; the setback
+shrinks to ``0.9`` of the shorter leg where a leg is shorter); at a roundabout the entry lane up
+to the ring's centre-line, counter-clockwise along it and out along the exit lane. The route
+polyline is resampled to ``route.points`` points evenly spaced in arc length.
+
+Start and goal (the feasibility rule)
+--------------------------------------
+Poses are the tractor rear axle on a lane centre-line facing along it, trailer aligned. The
+**start on link** ``L_i`` (``i < J``) has its rear axle ``rear + start_margin`` along the lane
+from the link's entry (``rear``: the truck's extent behind its rear axle), the **goal** on
+``L_J`` its rear axle ``front + goal_margin`` before the chain's end (``front``: the extent
+ahead). The start curriculum (:func:`curriculum_reset`) picks the start on ``L_{J-j}`` for a
+route through ``j`` junctions. A chain is kept when every one of these poses
+
+* touches no curb (:func:`~truckrl.sim.collision.truck_collides` on the chain's curbs),
+* keeps its tractor and trailer boxes outside every junction zone (a disc
+  :func:`~truckrl.sim.network.traffic.junction_zones`, reaching ``zone_margin`` beyond the
+  junction's road surface),
+* and the goal lies ``min_goal_gap`` or more along the route beyond every start;
+
+and the chain has all ``K`` blocks. Other chains are redrawn, up to ``rounds`` times; a chain
+still failing is kept and marked (``info["feasible"] = 0``); at the defaults none of 4,096 drawn
+is (``tests/tasks/network/test_network_task.py``).
+
+Traffic
+-------
+:func:`~truckrl.sim.network.traffic.spawn_traffic` on the chain with every start option and the
+goal reserved (a disc round the truck's footprint midpoint, radius half its length plus
+``traffic_clearance``), then a uniform draw per vehicle (``keep_draw``): the curriculum keeps a
+vehicle where its draw is below the level's traffic share.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import torch
+from torch import Tensor
+
+from truckrl.config.fields import ConfigError, param, validate
+from truckrl.sim.collision import truck_collides
+from truckrl.sim.geometry import wrap_angle
+from truckrl.sim.network.compose import Network, block_params, grow, socket_count
+from truckrl.sim.network.config import (
+    BLOCK_NAMES,
+    CROSSING,
+    CURVE,
+    MEDIAN,
+    ROUNDABOUT,
+    STRAIGHT,
+    T_JUNCTION,
+    NetworkConfig,
+)
+from truckrl.sim.network.traffic import Traffic, TrafficConfig, junction_zones, spawn_traffic
+from truckrl.sim.roads import scene_device, uniform
+from truckrl.sim.vehicle import truck_boxes, truck_extents
+
+#: Block types a link may be (entered at socket 0, left at socket 1).
+LINK_TYPES: tuple[int, ...] = (STRAIGHT, CURVE, MEDIAN)
+#: Block types a junction may be (entered and left at any two different sockets).
+JUNCTION_TYPES: tuple[int, ...] = (CROSSING, T_JUNCTION, ROUNDABOUT)
+#: |heading change| [rad] at a junction below which the route counts as going straight on
+#: (about 20 deg); beyond it a left (> 0) or right (< 0) turn.
+STRAIGHT_TURN = math.radians(20.0)
+#: Per-episode metadata keys (``state["route"]``, :mod:`truckrl.tasks.network.bins`): the
+#: route's junctions and blocks, block types on it (0 / 1 each), turns at its junctions
+#: (counts), vehicles and their density [1 / 100 m of lane], the curriculum level, whether the
+#: chain met the feasibility rule, and the route's length from start to goal [m].
+INFO_KEYS: tuple[str, ...] = (
+    "junctions",
+    "blocks",
+    *(f"has_{name}" for name in BLOCK_NAMES),
+    "turns_straight",
+    "turns_left",
+    "turns_right",
+    "vehicles",
+    "traffic_density",
+    "level",
+    "feasible",
+    "route_length",
+)
+#: Traffic state keys (:class:`~truckrl.sim.network.traffic.Traffic` fields, prefixed
+#: ``tr_``); ``lane``, ``s``, ``v`` and ``waiting`` change every step.
+TRAFFIC_FIELDS: tuple[str, ...] = (
+    "lanes",
+    "cum",
+    "lane_len",
+    "pieces",
+    "successor",
+    "zone_centre",
+    "zone_radius",
+    "zone_mask",
+    "lane",
+    "home",
+    "s",
+    "v",
+    "v0",
+    "length",
+    "width",
+    "truck",
+    "active",
+    "waiting",
+)
+
+
+@dataclass
+class RouteConfig:
+    """The route polyline and what the observation shows of it (``env.task.route.*``)."""
+
+    points: int = param(
+        128, lo=2, hi=4096, unit="-", doc="route polyline points, evenly spaced in arc length"
+    )
+    setback: float = param(
+        12.0,
+        lo=0.0,
+        hi=100.0,
+        unit="m",
+        doc="a turn's Bezier curve starts and ends this far from the lanes' corner",
+    )
+    ahead: int = param(
+        4, lo=1, hi=64, unit="-", doc="route points observed ahead of the truck (x, y each)"
+    )
+    spacing: float = param(
+        10.0, lo=0.1, hi=200.0, unit="m", doc="arc length between the observed route points"
+    )
+
+    def __post_init__(self) -> None:
+        validate(self, "env.task.route")
+
+
+@dataclass
+class CurriculumConfig:
+    """The scene's complexity by difficulty (``env.task.curriculum.*``): level ``i`` holds from
+    ``difficulty[i]`` on (the largest ``difficulty[i] <= d`` picks it); a route through
+    ``junctions[i]`` junctions (so ``2 junctions[i] + 1`` blocks) and ``traffic[i]`` of the
+    spawned vehicles. The tolerances shrink with difficulty as in every task."""
+
+    difficulty: tuple[float, ...] = param(
+        (0.0, 1.0, 2.0, 3.0), lo=0.0, hi=30.0, min_len=1, unit="-",
+        doc="difficulty where each level starts (increasing, first 0)",
+    )  # fmt: skip
+    junctions: tuple[int, ...] = param(
+        (1, 1, 2, 2), lo=0, hi=16, min_len=1, unit="-",
+        doc="junctions on the route at each level (the chain has 2 max + 1 blocks)",
+    )  # fmt: skip
+    traffic: tuple[float, ...] = param(
+        (0.0, 0.5, 0.5, 1.0), lo=0.0, hi=1.0, min_len=1, unit="-",
+        doc="share of the spawned vehicles kept at each level",
+    )  # fmt: skip
+
+    def __post_init__(self) -> None:
+        validate(self, "env.task.curriculum")
+        d = self.difficulty
+        if len(self.junctions) != len(d) or len(self.traffic) != len(d):
+            raise ConfigError(
+                f"env.task.curriculum: difficulty, junctions and traffic must have one value per "
+                f"level, got {len(d)}, {len(self.junctions)} and {len(self.traffic)}"
+            )
+        if d[0] != 0.0 or any(b <= a for a, b in zip(d[:-1], d[1:], strict=True)):
+            raise ConfigError(
+                f"env.task.curriculum.difficulty = {list(d)}: must start at 0 and increase"
+            )
+
+    @property
+    def max_junctions(self) -> int:
+        return max(self.junctions)
+
+
+@dataclass
+class NetworkSceneConfig:
+    """Chain, route, start and goal, traffic (``env.task.*``; module doc)."""
+
+    start_margin: float = param(
+        2.0, lo=0.0, hi=100.0, unit="m", doc="the start's trailer rear this far into its link"
+    )
+    goal_margin: float = param(
+        5.0, lo=0.0, hi=100.0, unit="m", doc="the goal's front bumper this far before the end"
+    )
+    min_goal_gap: float = param(
+        5.0, lo=0.0, hi=1000.0, unit="m", doc="goal at least this far along the route past a start"
+    )
+    traffic_clearance: float = param(
+        2.0, lo=0.0, hi=50.0, unit="m", doc="no vehicle spawns this near a start or goal footprint"
+    )
+    rounds: int = param(16, lo=1, hi=256, unit="-", doc="draws of a chain that breaks the rule")
+
+    def __post_init__(self) -> None:
+        validate(self, "env.task")
+
+
+@dataclass
+class Chain:
+    """Drawn episodes before the curriculum (:func:`generate_episodes`), ``n`` rows."""
+
+    network: Network  # not compacted: segments [n, K C, 4]
+    traffic: Traffic
+    keep_draw: Tensor  # [n, M] uniform: the curriculum keeps a vehicle below its share
+    route_points: Tensor  # [n, R, 2] resampled route [m]
+    route_cum: Tensor  # [n, R] its arc length [m]
+    turn: Tensor  # [n, K] heading change at each junction [rad] (links: 0)
+    start_options: Tensor  # [n, J + 1, 3] start pose on link L_i (only those in use checked)
+    goal: Tensor  # [n, 3]
+    feasible: Tensor  # [n] bool
+
+
+# ------------------------------------------------------------------------------- the chain
+def _types(cfg: NetworkConfig, allowed: tuple[int, ...], what: str) -> Tensor:
+    types = [BLOCK_NAMES.index(t) for t in cfg.block_types if BLOCK_NAMES.index(t) in allowed]
+    if not types:
+        names = [BLOCK_NAMES[t] for t in allowed]
+        raise ConfigError(
+            f"env.task.network.block_types = {list(cfg.block_types)}: needs a {what} ({names})"
+        )
+    return torch.tensor(types)
+
+
+def draw_chain(cfg: NetworkConfig, junctions: int, n: int, rand, dev) -> Network:
+    """``n`` chains of ``2 junctions + 1`` alternating link and junction blocks (module doc),
+    not compacted."""
+    K = 2 * junctions + 1
+    net_cfg = replace(cfg, num_blocks=(K, K))
+    links = _types(cfg, LINK_TYPES, "link").to(dev)
+    joints = _types(cfg, JUNCTION_TYPES, "junction").to(dev)
+    types = tuple(sorted(set(links.tolist()) | set(joints.tolist())))
+    width = uniform(cfg.road_width, rand(n))
+    heading = 2.0 * math.pi * rand(n)
+
+    def draw(k: int, rows: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        u = rand(rows, 6)
+        table = links if k % 2 == 0 else joints
+        kind = table[(u[:, 0] * len(table)).long().clamp_max(len(table) - 1)]
+        params = block_params(net_cfg, kind, u[:, 3:])
+        if k % 2 == 0:
+            zero = torch.zeros(rows, dtype=torch.long, device=dev)
+            return kind, params, zero, zero + 1
+        count = socket_count(kind, params)
+        entry = (u[:, 1] * count).long().clamp_max(count - 1)
+        return kind, params, entry, u[:, 2]
+
+    target = torch.full((n,), K, dtype=torch.long, device=dev)
+    network, _ = grow(net_cfg, types, width, heading, target, draw, cfg.rounds)
+    return network
+
+
+# ------------------------------------------------------------------------------- the route
+def _right(heading: Tensor) -> Tensor:
+    """Right-hand unit normals ``[..., 2]`` of headings ``[...]``."""
+    return torch.stack((torch.sin(heading), -torch.cos(heading)), -1)
+
+
+def _unit(heading: Tensor) -> Tensor:
+    return torch.stack((torch.cos(heading), torch.sin(heading)), -1)
+
+
+def _lerp(a: Tensor, b: Tensor, count: int) -> Tensor:
+    """``count`` points from ``a`` to ``b`` ``[n, 2]``, both included: ``[n, count, 2]``."""
+    f = torch.linspace(0.0, 1.0, count, device=a.device).view(1, count, 1)
+    return a.unsqueeze(1) + f * (b - a).unsqueeze(1)
+
+
+def _junction_route(net: Network, k: int, count: int, setback_max: float) -> tuple[Tensor, Tensor]:
+    """Block ``k``'s route piece ``[n, count, 2]`` (module doc; junctions only, other rows are
+    meaningless; a turn's Bezier curve starts ``setback_max`` [m] or less before the corner) and
+    its heading change [rad] ``[n]``."""
+    n, dev = net.block_type.shape[0], net.block_type.device
+    rows = torch.arange(n, device=dev)
+    w = net.road_width
+    entry = net.sockets[rows, k, net.entry[:, k].clamp_min(0)]  # [n, 3]
+    exit_ = net.sockets[rows, k, net.exit[:, k].clamp_min(0)]
+    d_in, d_out = entry[:, 2] + math.pi, exit_[:, 2]
+    p_in = entry[:, :2] + 0.25 * w.unsqueeze(-1) * _right(d_in)
+    p_out = exit_[:, :2] + 0.25 * w.unsqueeze(-1) * _right(d_out)
+    turn = wrap_angle(d_out - d_in)
+    # crossing and T-junction: straight through, or a Bezier corner between the two lanes
+    u, v = _unit(d_in), _unit(d_out)
+    cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    safe = torch.where(cross.abs() < 1e-6, torch.ones_like(cross), cross)
+    d = p_out - p_in
+    a = (d[:, 0] * v[:, 1] - d[:, 1] * v[:, 0]) / safe  # p_in -> corner along u
+    b = (u[:, 0] * d[:, 1] - u[:, 1] * d[:, 0]) / safe  # corner -> p_out along v
+    corner = p_in + a.unsqueeze(-1) * u
+    turning = (turn.abs() >= STRAIGHT_TURN) & (a > 0) & (b > 0)
+    setback = torch.minimum(torch.full_like(a, setback_max), 0.9 * torch.minimum(a, b))
+    start = corner - setback.unsqueeze(-1) * u
+    end = corner + setback.unsqueeze(-1) * v
+    f = torch.linspace(0.0, 1.0, count - 2, device=dev).view(1, -1, 1)
+    bezier = (
+        (1 - f) ** 2 * start.unsqueeze(1)
+        + 2 * f * (1 - f) * corner.unsqueeze(1)
+        + f**2 * end.unsqueeze(1)
+    )
+    bent = torch.cat((p_in.unsqueeze(1), bezier, p_out.unsqueeze(1)), 1)
+    straight = _lerp(p_in, p_out, count)
+    piece = torch.where(turning.view(n, 1, 1), bent, straight)
+    # roundabout: in to the ring, counter-clockwise round it, out
+    smask = net.socket_mask[:, k].unsqueeze(-1)
+    centre = (net.sockets[:, k, :, :2] * smask).sum(1) / smask.sum(1).clamp_min(1)
+    rho = net.block_params[:, k, 0]
+    delta = torch.asin((0.25 * w / rho.clamp_min(1e-3)).clamp(max=1.0))
+    phi_in = entry[:, 2] + delta
+    sweep = torch.remainder(exit_[:, 2] - delta - phi_in, 2.0 * math.pi)
+    g = torch.linspace(0.0, 1.0, count - 2, device=dev).view(1, -1)
+    phi = phi_in.unsqueeze(-1) + sweep.unsqueeze(-1) * g
+    ring = centre.unsqueeze(1) + rho.view(n, 1, 1) * torch.stack((phi.cos(), phi.sin()), -1)
+    ring = torch.cat((p_in.unsqueeze(1), ring, p_out.unsqueeze(1)), 1)
+    is_ring = (net.block_type[:, k] == ROUNDABOUT).view(n, 1, 1)
+    return torch.where(is_ring, ring, piece), turn
+
+
+def _cumulative(points: Tensor) -> Tensor:
+    """Arc length ``[n, P]`` [m] at each point of polylines ``[n, P, 2]``."""
+    step = (points[:, 1:] - points[:, :-1]).norm(dim=-1)
+    return torch.cat((torch.zeros_like(step[:, :1]), step.cumsum(-1)), -1)
+
+
+def point_at(points: Tensor, cum: Tensor, s: Tensor) -> tuple[Tensor, Tensor]:
+    """Points ``[n, S, 2]`` and headings ``[n, S]`` at arc lengths ``s [n, S]`` along polylines
+    ``points [n, P, 2]`` with arc lengths ``cum [n, P]`` (clamped to their ends; a zero-length
+    piece takes the heading of the piece it belongs to, 0 where all are)."""
+    P = points.shape[1]
+    idx = torch.searchsorted(cum, s.contiguous(), right=True) - 1
+    idx = idx.clamp(0, P - 2)
+    c0, c1 = cum.gather(1, idx), cum.gather(1, idx + 1)
+    p0 = points.gather(1, idx.unsqueeze(-1).expand(*idx.shape, 2))
+    p1 = points.gather(1, (idx + 1).unsqueeze(-1).expand(*idx.shape, 2))
+    t = ((s - c0) / (c1 - c0).clamp_min(1e-9)).clamp(0.0, 1.0).unsqueeze(-1)
+    d = p1 - p0
+    return p0 + t * d, torch.atan2(d[..., 1], d[..., 0])
+
+
+def build_route(net: Network, cfg: RouteConfig) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """The route of each chain (module doc).
+
+    Returns:
+        ``(dense [n, K Q', 2], dense_cum [n, K Q'], block_s [n, K + 1], turn [n, K],
+        resampled [n, cfg.points, 2])``: the route as built from the blocks' pieces (lane
+        vertices: on the lane centre-lines), its arc length, where each block begins along it,
+        the heading change at each junction [rad] and the route resampled evenly.
+    """
+    n, K = net.block_type.shape
+    L = net.lanes.shape[1] // K
+    Q = net.lanes.shape[2]
+    count = Q + 2
+    pieces, turns = [], []
+    for k in range(K):
+        if k % 2 == 0:  # a link: its forward lane, padded by its last point
+            lane = net.lanes[:, k * L]
+            pieces.append(torch.cat((lane, lane[:, -1:].expand(n, 2, 2)), 1))
+            turns.append(torch.zeros(n, device=lane.device))
+        else:
+            piece, turn = _junction_route(net, k, count, cfg.setback)
+            pieces.append(piece)
+            turns.append(turn)
+    dense = torch.cat(pieces, 1)
+    cum = _cumulative(dense)
+    block_s = torch.cat((cum[:, ::count], cum[:, -1:]), 1)
+    total = cum[:, -1:]
+    f = torch.linspace(0.0, 1.0, cfg.points, device=dense.device).unsqueeze(0)
+    resampled, _ = point_at(dense, cum, total * f)
+    return dense, cum, block_s, torch.stack(turns, 1), resampled
+
+
+def route_cumulative(points: Tensor) -> Tensor:
+    """Arc length ``[n, R]`` [m] at each point of a route polyline ``[n, R, 2]``."""
+    return _cumulative(points)
+
+
+# ----------------------------------------------------------------------- start, goal, checks
+def box_disc_gap(box: tuple[Tensor, ...], centre: Tensor, radius: Tensor) -> Tensor:
+    """Distance [m] from a box ``(cx, cy, heading, front, rear, half_width)`` (each ``[n]``;
+    :func:`~truckrl.sim.vehicle.truck_boxes`) to discs ``centre [n, Z, 2]``, ``radius [n, Z]``:
+    ``[n, Z]``, negative where they overlap."""
+    cx, cy, heading, front, rear, half = (t.unsqueeze(-1) for t in box)
+    dx, dy = centre[..., 0] - cx, centre[..., 1] - cy
+    c, s = torch.cos(heading), torch.sin(heading)
+    along, across = c * dx + s * dy, -s * dx + c * dy
+    ox = (along - along.clamp(-rear, front)).abs()
+    oy = (across - across.clamp(-half, half)).abs()
+    return torch.hypot(ox, oy) - radius
+
+
+def pose_ok(
+    pose: Tensor, params: dict[str, Tensor], net: Network, zones: tuple[Tensor, Tensor, Tensor]
+) -> Tensor:
+    """``[n]`` bool: a truck at ``pose [n, 3]`` (articulation 0) touches no curb of ``net`` and
+    keeps its tractor and trailer outside every junction zone."""
+    pose4 = torch.cat((pose, torch.zeros_like(pose[:, :1])), -1)
+    free = ~truck_collides(pose4, params, net.segments, net.mask)
+    centre, radius, zmask = zones
+    tractor, trailer, _ = truck_boxes(pose4, params)
+    for box in (tractor, trailer):
+        free = free & ~((box_disc_gap(box, centre, radius) < 0.0) & zmask).any(-1)
+    return free
+
+
+def generate_episodes(
+    cfg: NetworkSceneConfig,
+    network: NetworkConfig,
+    traffic: TrafficConfig,
+    route: RouteConfig,
+    levels: tuple[int, ...],
+    params: dict[str, Tensor],
+    generator: torch.Generator | None = None,
+    device=None,
+) -> Chain:
+    """``n`` episodes (module doc) for the trucks ``params {key: [n]}``, before the curriculum.
+
+    ``levels``: the junction counts the curriculum routes through; the chain has ``J = max``
+    of them, and the start options that the rule checks (and traffic avoids) are those on the
+    links ``L_{J - j}`` for each ``j`` in ``levels``."""
+    dev, params = scene_device(params, generator, device)
+    n = next(iter(params.values())).shape[0]
+
+    front, rear, _ = truck_extents(params)
+    todo = torch.ones(n, dtype=torch.bool, device=dev)
+    chain: Chain | None = None
+    for _ in range(cfg.rounds):
+        rows = todo.nonzero().squeeze(-1)  # a scene generator's host read, never a step's
+        if rows.numel() == 0:
+            break
+        sub = {k: v[rows] for k, v in params.items()}
+        fresh = _one_round(
+            cfg, network, traffic, route, levels, sub, front[rows], rear[rows], generator, dev
+        )
+        if chain is None:
+            chain = fresh
+        else:
+            _assign(chain, rows, fresh)
+        todo[rows] = ~fresh.feasible
+    return chain
+
+
+def _assign(chain: Chain, rows: Tensor, fresh: Chain) -> None:
+    """Rows ``rows`` of ``chain`` (in place) from ``fresh`` (``len(rows)`` rows)."""
+    for obj, new in (
+        (chain.network, fresh.network),
+        (chain.traffic, fresh.traffic),
+        (chain, fresh),
+    ):
+        for name, value in vars(obj).items():
+            if isinstance(value, Tensor):
+                value[rows] = getattr(new, name)
+
+
+def _one_round(cfg, network, traffic, route, levels, params, front, rear, generator, dev) -> Chain:
+    """One draw of :func:`generate_episodes` for ``n`` trucks, feasibility marked."""
+    n = front.shape[0]
+    J = max(levels)
+    used = sorted({J - j for j in levels})  # the links a start may lie on
+
+    def rand(*shape: int) -> Tensor:
+        return torch.rand(*shape, generator=generator, device=dev)
+
+    net = draw_chain(network, J, n, rand, dev)
+    dense, cum, block_s, turn, points = build_route(net, route)
+    zones = junction_zones(net, traffic)
+    # a start option on every link L_0 .. L_J (blocks 0, 2, ...), the goal on L_J
+    s_start = block_s[:, 0 : 2 * J + 1 : 2] + (rear + cfg.start_margin).unsqueeze(-1)
+    s_goal = block_s[:, -1] - front - cfg.goal_margin
+    xy, heading = point_at(dense, cum, torch.cat((s_start, s_goal.unsqueeze(-1)), 1))
+    poses = torch.cat((xy, heading.unsqueeze(-1)), -1)  # [n, J + 2, 3]
+    checked = [*used, J + 1]
+    feasible = (net.num_blocks == 2 * J + 1) & (
+        s_goal >= s_start[:, used].amax(-1) + cfg.min_goal_gap
+    )
+    for i in checked:
+        feasible = feasible & pose_ok(poses[:, i], params, net, zones)
+    # traffic: the start options in use and the goal reserved
+    mid = 0.5 * (front - rear)
+    sel = poses[:, checked]
+    centre = sel[..., :2] + mid.view(n, 1, 1) * _unit(sel[..., 2])
+    radius = (0.5 * (front + rear) + cfg.traffic_clearance).view(n, 1).expand(n, len(checked))
+    reserved = torch.cat((centre, radius.unsqueeze(-1)), -1)
+    tr = spawn_traffic(net, traffic, generator, reserved)
+    keep = rand(n, traffic.max_vehicles)
+    return Chain(
+        network=net,
+        traffic=tr,
+        keep_draw=keep,
+        route_points=points,
+        route_cum=route_cumulative(points),
+        turn=turn,
+        start_options=poses[:, : J + 1],
+        goal=poses[:, J + 1],
+        feasible=feasible,
+    )
