@@ -310,8 +310,8 @@ def test_the_docs_callable_example_runs_as_the_same_torchrl_module():
 
     ref, _, _ = evaluate_policy(module, EnvConfig(), 0.0, 20, 12345)
     assert results.keys() == ref.keys() and results["success"].shape == (20,)
-    for k in ref:
-        assert torch.equal(results[k], ref[k]), k
+    for k in ref:  # "motion" is NaN after each episode's end
+        torch.testing.assert_close(results[k], ref[k], rtol=0, atol=0, equal_nan=True, msg=k)
     assert results["success"].any() and not results["success"].all()
 
 
@@ -371,3 +371,56 @@ def test_bad_policy_specs_on_the_command_line_are_one_line(tmp_path, monkeypatch
         assert r.code == 2 and len(r.err.strip().splitlines()) == 1, (args, r.err)
         assert fragment in r.err, (args, r.err)
     assert list(tmp_path.iterdir()) == []  # nothing ran, nothing written
+
+
+def test_motion_records_the_commanded_rates(tiny_checkpoint):
+    """accel_rate control: the realised acceleration and steering rate are the command times the
+    truck's bound (``u * max_q``) while nothing saturates; a constant command has zero jerk after
+    its first step."""
+    _, _, tc = tiny_checkpoint
+    cfg = dataclasses.replace(tc.env, max_steps=5)
+    u = torch.tensor([0.25, 0.1])
+
+    def constant(td):
+        return td.set("action", u.expand(td.batch_size[0], 2).clone())
+
+    res, _, _ = evaluate_policy(constant, cfg, 6.0, episodes=6, seed=4)
+    m = res["motion"]  # [E, T, 4]: accel, jerk, steer_rate, steer_accel
+    assert m.shape == (6, 5, len(rollout_module.MOTION))
+    g = torch.Generator().manual_seed(4)
+    params = sample_vehicle_params(cfg.vehicle, max(6, cfg.episode_pool), g)
+    max_accel, max_rate = params["max_accel"][:6], params["max_steer_rate"][:6]
+    torch.testing.assert_close(m[:, :3, 0], (u[0] * max_accel)[:, None].expand(6, 3))
+    torch.testing.assert_close(m[:, :3, 2], (u[1] * max_rate)[:, None].expand(6, 3))
+    torch.testing.assert_close(m[:, 1:3, 1], torch.zeros(6, 2))
+
+
+def test_motion_holds_one_row_per_step_of_each_episode(tiny_checkpoint):
+    _, _, tc = tiny_checkpoint
+
+    def full_throttle_left(td):  # drives into a curb, each scene at its own step
+        return td.set("action", torch.tensor([1.0, 1.0]).expand(td.batch_size[0], 2).clone())
+
+    res, _, _ = evaluate_policy(full_throttle_left, tc.env, 1.0, episodes=24, seed=5)
+    live = ~res["motion"].isnan().any(-1)  # [E, T]
+    assert res["length"].unique().numel() > 1  # episodes of different lengths
+    torch.testing.assert_close(live.sum(1).float(), res["length"])
+    assert (live[:, :-1] | ~live[:, 1:]).all()  # live steps first, then NaN
+
+
+def test_smoothness_pools_the_steps_of_successful_episodes_only():
+    # two successes of 2 and 3 live steps (NaN after the end) and one failure that is ignored
+    nan = float("nan")
+    jerk = torch.tensor([[1.0, -3.0, nan], [2.0, -4.0, 5.0], [100.0, 100.0, 100.0]])
+    motion = torch.zeros(3, 3, len(rollout_module.MOTION))
+    motion[..., 1] = jerk
+    motion[0, 2] = nan
+    res = {"motion": motion, "success": torch.tensor([True, True, False])}
+    sm = rollout_module.smoothness(res)
+    assert sm["steps"] == 5
+    # |jerk| pooled: 1, 2, 3, 4, 5 -> linear percentiles: p50 = 3, p95 = 4.8, p99 = 4.96
+    assert sm["jerk_m/s^3_p50"] == pytest.approx(3.0)
+    assert sm["jerk_m/s^3_p95"] == pytest.approx(4.8)
+    assert sm["jerk_m/s^3_p99"] == pytest.approx(4.96)
+    assert sm["accel_m/s^2_p99"] == 0.0
+    assert rollout_module.smoothness({**res, "success": torch.zeros(3, dtype=torch.bool)}) is None

@@ -10,8 +10,10 @@ short for ``policy=checkpoint:PATH``. Runs one deterministic episode in each of 
 scenes drawn from ``seed`` (the same seed gives the same scenes, so policies are compared on
 identical tasks) at ``difficulty`` (default: the policy's curriculum difficulty, else 6), with the
 policy's env config (a checkpoint's, an ONNX export's model card; else the default env of
-``task``), changed by ``env.*`` overrides. Prints the
-outcome rates and mean / p95 final errors, then the same per scene category (intersection: route,
+``task``), changed by ``env.*`` overrides. Prints the outcome rates and mean / p95 final
+errors, then the percentiles of the realised |jerk|, |steering rate| and the rest of
+:data:`~truckrl.evaluation.rollout.MOTION` over every step of the successful episodes
+(``"smoothness"``), then the outcome rates and errors per scene category (intersection: route,
 turn angle split left / right, crossing angle, trailer length, road width, goal distance; other
 tasks: their ``category_dims``; see :mod:`truckrl.evaluation.categories`), then everything as one line of JSON (the category rows under
 ``"categories"``), and writes that JSON to ``output``: by default
@@ -109,7 +111,7 @@ def evaluate(ec: EvaluateConfig) -> dict:
         summarize_by_category,
         task_bins,
     )
-    from truckrl.evaluation.rollout import summarize
+    from truckrl.evaluation.rollout import smoothness, summarize
 
     if spec.kind == "planner":
         summary_head, results, (tol_pos, tol_deg), errors, output, task = _run_planner(ec)
@@ -123,9 +125,12 @@ def evaluate(ec: EvaluateConfig) -> dict:
         "tolerance_heading_deg": tol_deg,
         "seed": ec.seed,
         **summarize(results, errors),
+        "smoothness": smoothness(results) if "motion" in results else None,
         "categories": summarize_by_category(results, bins, errors) if bins else [],
     }
     print_table(summary, errors)
+    if summary["smoothness"]:
+        print_smoothness(summary["smoothness"])
     print()
     if bins:
         print("by scene category (bins [lo, hi)):")
@@ -241,6 +246,17 @@ def print_table(s: dict, errors: tuple[Quantity, ...]) -> None:
     for q in errors:
         key = f"{q.key}_{q.shown_unit}"
         print(f"{f'{q.key} [{q.shown_unit}]':<30}{s[f'{key}_mean']:>10.3f}{s[f'{key}_p95']:>10.3f}")
+
+
+def print_smoothness(sm: dict) -> None:
+    """The :func:`~truckrl.evaluation.rollout.smoothness` table: one row per quantity."""
+    from truckrl.evaluation.rollout import MOTION, SMOOTHNESS_PERCENTILES
+
+    head = "".join(f"{f'p{p}':>10}" for p in SMOOTHNESS_PERCENTILES)
+    print(f"{'|motion| in successes':<30}{head}")
+    for key, unit in MOTION:
+        row = "".join(f"{sm[f'{key}_{unit}_p{p}']:>10.3f}" for p in SMOOTHNESS_PERCENTILES)
+        print(f"{f'{key} [{unit}]':<30}{row}")
 
 
 def prepare_argv(argv: list[str]) -> list[str]:

@@ -79,6 +79,16 @@ def _action(a: Any, td: TensorDictBase) -> Tensor:
 #: intersection task's, named after its main key) and ``scene_info`` (other tasks).
 SCENE_INFO_ENTRIES = ("route", "scene_info")
 
+#: Control-state quantities (:mod:`truckrl.sim.control`'s chains) recorded after every step of an
+#: episode for :func:`smoothness`, with their units: the smoothness a control mode buys shows in
+#: the realised jerk and steering rate whichever quantity the policy commands.
+MOTION = (
+    ("accel", "m/s^2"),
+    ("jerk", "m/s^3"),
+    ("steer_rate", "rad/s"),
+    ("steer_accel", "rad/s^2"),
+)
+
 
 @torch.no_grad()
 def evaluate_policy(
@@ -130,7 +140,9 @@ def evaluate_policy(
         start and after each step, held at its last value once the episode has ended (``T``:
         the steps the batch ran); the start states themselves (the scenes) are
         ``truckrl.planning.held_out_states`` of the same env config, seed and
-        difficulty.
+        difficulty. "motion" ``[E, T, 4]`` holds the :data:`MOTION` quantities after each step
+        of the episode (in their units; NaN after the episode's end), the input of
+        :func:`smoothness`.
     """
     # eager: a one-off batch does not repay the compile time
     env_cfg = dataclasses.replace(env_cfg, compile=False)
@@ -148,20 +160,26 @@ def evaluate_policy(
     start = env.get_state()
     scene = _scene_of(start)
     path = [start["pose"]] if record_paths else None
+    motion = []
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(env_cfg.max_steps):
             nxt = env.step(actor(td))["next"]
             new = nxt["done"].squeeze(-1) & ~ended
             for k in keys:
                 rec[k] = torch.where(new, nxt[k].squeeze(-1).to(torch.float32), rec[k])
-            if path is not None:  # the state after the step (an ended truck keeps its pose)
-                path.append(torch.where(ended[:, None], path[-1], env.get_state()["pose"]))
+            after = env.get_state()  # the state after the step (an ended truck keeps its pose)
+            if path is not None:
+                path.append(torch.where(ended[:, None], path[-1], after["pose"]))
+            q = torch.stack([after[k].to(torch.float32) for k, _ in MOTION], -1)
+            motion.append(torch.where(ended[:, None], torch.nan, q))
             ended |= new
             if bool(ended.all()):
                 break
             td = nxt
     env.close()
-    return _results(rec, flags, errors, scene, path), tolerance, errors
+    results = _results(rec, flags, errors, scene, path)
+    results["motion"] = torch.stack(motion, 1).cpu()
+    return results, tolerance, errors
 
 
 def _scene_of(start: TensorDictBase) -> dict[str, Tensor]:
@@ -204,6 +222,28 @@ def summarize(results: dict[str, Tensor], errors: tuple[Quantity, ...]) -> dict[
         v = results[q.key].to(torch.float64)
         out[f"{q.key}_{q.shown_unit}_mean"] = v.mean().item()
         out[f"{q.key}_{q.shown_unit}_p95"] = torch.quantile(v, 0.95).item()
+    return out
+
+
+#: Percentiles of :func:`smoothness` [%].
+SMOOTHNESS_PERCENTILES = (50, 95, 99)
+
+
+def smoothness(results: dict[str, Tensor]) -> dict[str, float] | None:
+    """Percentiles of the magnitude of each :data:`MOTION` quantity over every step of the
+    successful episodes of ``results`` (:func:`evaluate_policy`'s), keyed
+    ``"<quantity>_<unit>_p<q>"`` (e.g. ``jerk_m/s^3_p95``), plus ``"steps"``, the steps pooled.
+    None when no episode succeeded. Successful episodes only, so that a policy is not credited
+    with the calm of a truck that stopped or crashed early."""
+    m = results["motion"][results["success"]].reshape(-1, len(MOTION)).double().numpy()
+    m = m[~np.isnan(m).any(-1)]
+    if m.shape[0] == 0:
+        return None
+    pct = np.percentile(np.abs(m), SMOOTHNESS_PERCENTILES, axis=0)  # [P, 4], linear
+    out: dict[str, float] = {"steps": int(m.shape[0])}
+    for i, (key, unit) in enumerate(MOTION):
+        for j, p in enumerate(SMOOTHNESS_PERCENTILES):
+            out[f"{key}_{unit}_p{p}"] = float(pct[j, i])
     return out
 
 
