@@ -135,7 +135,7 @@ def path_point(path: Tensor, cum: Tensor, tan: Tensor, s: Tensor) -> Tensor:
     """The point ``[N, 2]`` at arc length ``s [N]`` of polylines ``path [N, M, 2]`` (linear
     between vertices; before the start / past the end along the first / last segment)."""
     m = path.shape[1]
-    i = torch.searchsorted(cum, s[:, None].contiguous(), right=True)[:, 0] - 1
+    i = torch.searchsorted(cum.contiguous(), s[:, None].contiguous(), right=True)[:, 0] - 1
     i = i.clamp(0, max(m - 2, 0))
     rows = torch.arange(path.shape[0], device=path.device)
     return path[rows, i] + (s - cum[rows, i])[:, None] * tan[rows, i]
