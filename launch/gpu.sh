@@ -2,7 +2,7 @@
 # The GPU figures of docs/benchmarks.md ("GPU"), in one go, on a machine with one CUDA GPU and
 # truckrl's dependencies importable. Run from the repository root:
 #
-#   launch/gpu.sh OUT [checks|train|demos|quality|all] [MINUTES]
+#   launch/gpu.sh OUT [checks|train|demos|quality|controls|all] [MINUTES]
 #
 #   checks: the CUDA tests (tests/test_device.py: no host sync in env.step, a collector + PPO
 #           iteration that stays on the GPU), `bench env device=cuda` at N = 4,096 ... 262,144
@@ -17,12 +17,18 @@
 #           held-out check first reads log.quality_target (0.95) at difficulty 6 (quality_reached),
 #           or MINUTES, with held-out checks every EVAL_FRAMES frames (default 10,000,000); then
 #           its last checkpoint on 1,000 held-out scenes (seed 12345) at difficulty 6;
+#   controls: `experiment=gpu_demos control=C` for each C of CONTROLS (default "jerk_accel
+#           accel_rate"), side by side on the one GPU, each for MINUTES; then each run's last.pt
+#           and best.pt on 1,000 held-out scenes (seed 12345) at difficulty 6, with the smoothness
+#           of their successful episodes (controls_<C>_<last|best>.json). EXTRA (words) adds
+#           training overrides, DEVICE (default cuda) is the evaluations' device: a dry run on
+#           a CPU is EXTRA="device=cpu collector.num_envs=64 ..." DEVICE=cpu;
 #
 # Logs, JSON and the runs' train.log and last checkpoint land flat in OUT; the run folders
 # themselves go to RUNS (default outputs/gpu). Every step runs even if an earlier one fails; the
 # exit code is the number of failures.
 set -u
-OUT=${1:?usage: launch/gpu.sh OUT [checks|train|demos|quality|all] [MINUTES]}
+OUT=${1:?usage: launch/gpu.sh OUT [checks|train|demos|quality|controls|all] [MINUTES]}
 WHAT=${2:-all}
 MIN=${3:-8}
 RUNS=${RUNS:-outputs/gpu}
@@ -86,5 +92,27 @@ if [ "$WHAT" = quality ]; then
     grep -h "quality_reached" "$RUNS/quality/train.log" | tee "$OUT/quality_reached.txt"
     step quality_eval python3 -m truckrl.evaluate checkpoint="$RUNS/quality" difficulty=6 \
         episodes=1000 seed=12345 device=cuda output="$OUT/quality_eval.json"
+fi
+if [ "$WHAT" = controls ]; then
+    for c in ${CONTROLS:-jerk_accel accel_rate}; do
+        step "controls_$c" timeout $((MIN * 60 + 120)) python3 -m truckrl.train \
+            experiment=gpu_demos control="$c" max_minutes="$MIN" \
+            log.eval_interval_frames="${EVAL_FRAMES:-20000000}" hydra.run.dir="$RUNS/controls_$c" \
+            overwrite=true log.progress_bar=false log.video_interval=0 ${EXTRA:-} &
+    done
+    wait  # the steps ran in subshells: failures are counted from what they left below
+    for c in ${CONTROLS:-jerk_accel accel_rate}; do
+        cp "$RUNS/controls_$c/train.log" "$OUT/controls_${c}_run.log"
+        for k in last best; do cp "$RUNS/controls_$c/checkpoints/$k.pt" "$OUT/controls_${c}_$k.pt"; done
+        for k in last best; do
+            step "controls_${c}_$k" python3 -m truckrl.evaluate \
+                checkpoint="$RUNS/controls_$c/checkpoints/$k.pt" difficulty=6 episodes=1000 \
+                seed=12345 device="${DEVICE:-cuda}" output="$OUT/controls_${c}_$k.json" &
+        done
+    done
+    wait
+    for c in ${CONTROLS:-jerk_accel accel_rate}; do
+        for k in last best; do [ -f "$OUT/controls_${c}_$k.json" ] || fails=$((fails + 1)); done
+    done
 fi
 exit $fails
