@@ -20,7 +20,9 @@
 #   controls: `experiment=gpu_demos control=C` for each C of CONTROLS (default "jerk_accel
 #           accel_rate"), side by side on the one GPU, each for MINUTES; then each run's last.pt
 #           and best.pt on 1,000 held-out scenes (seed 12345) at difficulty 6, with the smoothness
-#           of their successful episodes (controls_<C>_<last|best>.json). EXTRA (words) adds
+#           of their successful episodes (controls_<C>_<last|best>.json). Each run gets an
+#           equal share of the host's cores (threads=): two runs of 16 threads each on 16 cores
+#           stalled for minutes after their planning. EXTRA (words) adds
 #           training overrides, DEVICE (default cuda) is the evaluations' device: a dry run on
 #           a CPU is EXTRA="device=cpu collector.num_envs=64 ..." DEVICE=cpu;
 #
@@ -94,11 +96,13 @@ if [ "$WHAT" = quality ]; then
         episodes=1000 seed=12345 device=cuda output="$OUT/quality_eval.json"
 fi
 if [ "$WHAT" = controls ]; then
-    for c in ${CONTROLS:-jerk_accel accel_rate}; do
+    runs=(${CONTROLS:-jerk_accel accel_rate})
+    share=$(( $(nproc) / ${#runs[@]} )); [ "$share" -ge 1 ] || share=1
+    for c in "${runs[@]}"; do
         step "controls_$c" timeout $((MIN * 60 + 120)) python3 -m truckrl.train \
             experiment=gpu_demos control="$c" max_minutes="$MIN" \
             log.eval_interval_frames="${EVAL_FRAMES:-20000000}" hydra.run.dir="$RUNS/controls_$c" \
-            overwrite=true log.progress_bar=false log.video_interval=0 ${EXTRA:-} &
+            overwrite=true log.progress_bar=false log.video_interval=0 threads="$share" ${EXTRA:-} &
     done
     wait  # the steps ran in subshells: failures are counted from what they left below
     for c in ${CONTROLS:-jerk_accel accel_rate}; do
