@@ -49,7 +49,6 @@ from truckrl.bench.report import (
 )
 from truckrl.config.fields import param, validate
 from truckrl.env import TruckEnv
-from truckrl.tasks import NUM_FEATURES
 
 TARGET_STEPS_PER_S = 100_000  # the target, 16 beams, on a CPU
 TARGET_RATIO_VS_PAPER = 30.0  # best config >= 30x the paper layout in the same run
@@ -115,6 +114,9 @@ class EnvBenchConfig:
         None, lo=1, hi=4096, doc="torch threads in the main process (null: torch's choice)"
     )
     seed: int = param(0, lo=0, hi=2**31 - 1, doc="scene seed")
+    task: str | None = param(
+        None, doc="task folder of the throughput rows (env.task.name; null: the default task)"
+    )
     out: str = param(str(DEFAULT_OUT_DIR), doc="JSON record: a folder, or a .json path")
 
     def __post_init__(self) -> None:
@@ -141,11 +143,26 @@ def parse(argv: list[str]) -> EnvBenchConfig:
         fail(f"peers=true needs VMAS: {peers.INSTALL_HINT}")
     if args.gym and importlib.util.find_spec("gymnasium") is None:
         fail("gym=true needs Gymnasium: pip install 'truckrl[gym]'")
+    if args.task is not None:
+        from truckrl.config.fields import ConfigError
+        from truckrl.tasks import task_class
+
+        try:
+            task_class(args.task)
+        except ConfigError as e:
+            fail(str(e).replace("env.task.name", "task", 1))
+        if args.scaling or args.peers or args.gym:
+            fail(f"task = {args.task!r}: scaling, peers and gym measure the default task only")
     return args
 
 
 def _make_env(
-    n: int, compile: bool, device: str, seed: int, overrides: dict | None = None
+    n: int,
+    compile: bool,
+    device: str,
+    seed: int,
+    overrides: dict | None = None,
+    task: str | None = None,
 ) -> TruckEnv:
     if compile:
         # Every env of a new size or config compiles new graphs of the same functions (step,
@@ -153,6 +170,8 @@ def _make_env(
         # torch._dynamo.config.recompile_limit (8) graphs and runs the later rows eagerly.
         torch._dynamo.reset()
     config = {"compile": compile, **(overrides or {})}
+    if task is not None:
+        config["task"] = {"name": task}
     return TruckEnv(num_envs=n, device=device, config=config, seed=seed)
 
 
@@ -278,7 +297,7 @@ def _parallel_steps_per_second(
 ) -> tuple[float, float]:
     """Env-steps/s and warm-up s of a ``ParallelEnv`` of ``workers`` spawned processes, each a
     CPU ``TruckEnv`` of ``per_worker`` trucks; the processes are closed after."""
-    make = functools.partial(_make_env, per_worker, compiled, "cpu", args.seed)
+    make = functools.partial(_make_env, per_worker, compiled, "cpu", args.seed, task=args.task)
     penv = ParallelEnv(workers, make, mp_start_method="spawn")
     try:
         penv.set_seed(args.seed)
@@ -299,7 +318,7 @@ def _throughput_rows(args: EnvBenchConfig, compiled: bool, rows: list[dict]) -> 
     """One compile mode's rows: batched ``TruckEnv`` at each N of ``envs``, then
     ``ParallelEnv`` at each total of ``parallel_envs`` (split over ``workers``)."""
     for n in args.envs:
-        env = _make_env(n, compiled, args.device, args.seed)
+        env = _make_env(n, compiled, args.device, args.seed, task=args.task)
         if not args.gym:
             sps, warm = steps_per_second(env, args.steps, args.warmup)
             _record(rows, "batched", 1, n, compiled, sps, warm)
@@ -366,8 +385,9 @@ def _collector_rows(args: EnvBenchConfig, compiled: bool) -> list[dict]:
 
     rows = []
     for n in args.parallel_envs:
-        env = _make_env(n, compiled, args.device, args.seed)
-        actor = make_actor_critic(ModelConfig(), NUM_FEATURES, env.config.lidar.num_beams).actor
+        env = _make_env(n, compiled, args.device, args.seed, task=args.task)
+        features = env.task.num_features
+        actor = make_actor_critic(ModelConfig(), features, env.config.lidar.num_beams).actor
         frames = n * 32
         collector = Collector(env, actor, frames_per_batch=frames, total_frames=frames * 6)
         t0 = time.perf_counter()

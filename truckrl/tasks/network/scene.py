@@ -75,7 +75,7 @@ from truckrl.sim.network.config import (
     NetworkConfig,
 )
 from truckrl.sim.network.traffic import Traffic, TrafficConfig, junction_zones, spawn_traffic
-from truckrl.sim.roads import scene_device, uniform
+from truckrl.sim.roads import first_valid, scene_device, uniform
 from truckrl.sim.vehicle import truck_boxes, truck_extents
 
 #: Block types a link may be (entered at socket 0, left at socket 1).
@@ -206,6 +206,20 @@ class NetworkSceneConfig:
         2.0, lo=0.0, hi=50.0, unit="m", doc="no vehicle spawns this near a start or goal footprint"
     )
     rounds: int = param(16, lo=1, hi=256, unit="-", doc="draws of a chain that breaks the rule")
+    copies: int = param(
+        1, lo=1, hi=64, unit="-", doc="chains drawn per episode and round (the first kept wins)"
+    )
+    window_chunks: int = param(
+        32, lo=1, hi=4096, unit="-", doc="stretches of the route with a curb window of their own"
+    )
+    window_size: int = param(
+        96, lo=1, hi=100_000, unit="segments",
+        doc="curbs a window holds at most (a chain with a fuller one is redrawn)",
+    )  # fmt: skip
+    window_slack: float = param(
+        10.0, lo=0.0, hi=1000.0, unit="m",
+        doc="windows hold every curb the LiDAR can reach from this far off the route",
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         validate(self, "env.task")
@@ -221,6 +235,8 @@ class Chain:
     route_points: Tensor  # [n, R, 2] resampled route [m]
     route_cum: Tensor  # [n, R] its arc length [m]
     turn: Tensor  # [n, K] heading change at each junction [rad] (links: 0)
+    window: Tensor  # [n, chunks, window_size] long: curb slots each route stretch may reach
+    window_valid: Tensor  # [n, chunks, window_size] bool
     start_options: Tensor  # [n, J + 1, 3] start pose on link L_i (only those in use checked)
     goal: Tensor  # [n, 3]
     feasible: Tensor  # [n] bool
@@ -388,6 +404,58 @@ def route_cumulative(points: Tensor) -> Tensor:
     return _cumulative(points)
 
 
+# --------------------------------------------------------------------------- curb windows
+def chunk_pieces(points: int, chunks: int) -> int:
+    """Route pieces per window stretch: ``ceil((points - 1) / chunks)``."""
+    return max(1, -(-(points - 1) // chunks))
+
+
+def route_windows(
+    points: Tensor,
+    cum: Tensor,
+    segments: Tensor,
+    mask: Tensor,
+    chunks: int,
+    reach: float,
+    size: int,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The curbs each stretch of the route may see (module doc, "Curb windows").
+
+    Stretch ``c`` holds the route pieces ``c G .. c G + G - 1`` (:func:`chunk_pieces`); it lies
+    within half its arc length ``l`` of its chord's midpoint ``m``, so a sensor within
+    ``reach - max_range`` of it sees only curbs within ``reach + l / 2`` of ``m``.
+
+    Args:
+        points, cum: the route ``[n, R, 2]`` and its arc length ``[n, R]`` [m].
+        segments, mask: curbs ``[n, E, 4]`` and validity ``[n, E]``.
+        reach: LiDAR range plus the slack off the route [m].
+        size: slots per window (at most ``E``: then every curb fits).
+
+    Returns:
+        ``(window [n, chunks, size] long, valid [n, chunks, size], overflow [n])``: the curb
+        slots of each window (valid first), which are real, and where a window would need more
+        than ``size``.
+    """
+    n, R = cum.shape
+    G = chunk_pieces(R, chunks)
+    first = (torch.arange(chunks, device=cum.device) * G).clamp_max(R - 1)
+    last = (first + G).clamp_max(R - 1)
+    mid = 0.5 * (points[:, first] + points[:, last])  # [n, chunks, 2]
+    half = 0.5 * (cum[:, last] - cum[:, first])
+    x0, y0, x1, y1 = (v.unsqueeze(1) for v in segments.unbind(-1))  # [n, 1, E]
+    px, py = mid[..., :1], mid[..., 1:]
+    dx, dy = x1 - x0, y1 - y0
+    t = (((px - x0) * dx + (py - y0) * dy) / (dx * dx + dy * dy).clamp_min(1e-12)).clamp(0, 1)
+    near = torch.hypot(px - x0 - t * dx, py - y0 - t * dy) <= reach + half.unsqueeze(-1)
+    near = near & mask.unsqueeze(1)  # [n, chunks, E]
+    count = near.sum(-1)
+    order = torch.sort((~near).to(torch.uint8), dim=-1, stable=True).indices
+    size = min(size, segments.shape[1])  # a window of every curb at most
+    window = order[..., :size]
+    valid = torch.arange(size, device=cum.device) < count.unsqueeze(-1)
+    return window, valid, (count > size).any(-1)
+
+
 # ----------------------------------------------------------------------- start, goal, checks
 def box_disc_gap(box: tuple[Tensor, ...], centre: Tensor, radius: Tensor) -> Tensor:
     """Distance [m] from a box ``(cx, cy, heading, front, rear, half_width)`` (each ``[n]``;
@@ -425,12 +493,14 @@ def generate_episodes(
     params: dict[str, Tensor],
     generator: torch.Generator | None = None,
     device=None,
+    reach: float = 60.0,
 ) -> Chain:
     """``n`` episodes (module doc) for the trucks ``params {key: [n]}``, before the curriculum.
 
     ``levels``: the junction counts the curriculum routes through; the chain has ``J = max``
     of them, and the start options that the rule checks (and traffic avoids) are those on the
-    links ``L_{J - j}`` for each ``j`` in ``levels``."""
+    links ``L_{J - j}`` for each ``j`` in ``levels``. ``reach``: the LiDAR range plus
+    ``window_slack`` [m] (the curb windows')."""
     dev, params = scene_device(params, generator, device)
     n = next(iter(params.values())).shape[0]
 
@@ -441,16 +511,31 @@ def generate_episodes(
         rows = todo.nonzero().squeeze(-1)  # a scene generator's host read, never a step's
         if rows.numel() == 0:
             break
-        sub = {k: v[rows] for k, v in params.items()}
+        # each open episode draws `copies` chains (copy j of row i at j m + i): fixed costs per
+        # draw dominate, so fewer, larger draws
+        many = rows.repeat(cfg.copies)
+        sub = {k: v[many] for k, v in params.items()}
         fresh = _one_round(
-            cfg, network, traffic, route, levels, sub, front[rows], rear[rows], generator, dev
-        )
+            cfg, network, traffic, route, levels, sub, front[many], rear[many], generator, dev,
+            reach,
+        )  # fmt: skip
+        ok, pick = first_valid(fresh.feasible.view(cfg.copies, rows.numel()))
+        fresh = _take(fresh, pick)
         if chain is None:
-            chain = fresh
+            chain = fresh  # round 0 holds every row
         else:
             _assign(chain, rows, fresh)
-        todo[rows] = ~fresh.feasible
+        todo[rows] = ~ok
     return chain
+
+
+def _take(chain: Chain, rows: Tensor) -> Chain:
+    """The rows ``rows`` of ``chain``."""
+
+    def pick(obj):
+        return replace(obj, **{k: v[rows] for k, v in vars(obj).items() if isinstance(v, Tensor)})
+
+    return replace(pick(chain), network=pick(chain.network), traffic=pick(chain.traffic))
 
 
 def _assign(chain: Chain, rows: Tensor, fresh: Chain) -> None:
@@ -465,7 +550,9 @@ def _assign(chain: Chain, rows: Tensor, fresh: Chain) -> None:
                 value[rows] = getattr(new, name)
 
 
-def _one_round(cfg, network, traffic, route, levels, params, front, rear, generator, dev) -> Chain:
+def _one_round(
+    cfg, network, traffic, route, levels, params, front, rear, generator, dev, reach
+) -> Chain:
     """One draw of :func:`generate_episodes` for ``n`` trucks, feasibility marked."""
     n = front.shape[0]
     J = max(levels)
@@ -483,9 +570,12 @@ def _one_round(cfg, network, traffic, route, levels, params, front, rear, genera
     xy, heading = point_at(dense, cum, torch.cat((s_start, s_goal.unsqueeze(-1)), 1))
     poses = torch.cat((xy, heading.unsqueeze(-1)), -1)  # [n, J + 2, 3]
     checked = [*used, J + 1]
-    feasible = (net.num_blocks == 2 * J + 1) & (
-        s_goal >= s_start[:, used].amax(-1) + cfg.min_goal_gap
+    route_cum = route_cumulative(points)
+    window, valid, overflow = route_windows(
+        points, route_cum, net.segments, net.mask, cfg.window_chunks, reach, cfg.window_size
     )
+    feasible = (net.num_blocks == 2 * J + 1) & ~overflow
+    feasible = feasible & (s_goal >= s_start[:, used].amax(-1) + cfg.min_goal_gap)
     for i in checked:
         feasible = feasible & pose_ok(poses[:, i], params, net, zones)
     # traffic: the start options in use and the goal reserved
@@ -501,7 +591,9 @@ def _one_round(cfg, network, traffic, route, levels, params, front, rear, genera
         traffic=tr,
         keep_draw=keep,
         route_points=points,
-        route_cum=route_cumulative(points),
+        route_cum=route_cum,
+        window=window,
+        window_valid=valid,
         turn=turn,
         start_options=poses[:, : J + 1],
         goal=poses[:, J + 1],

@@ -60,6 +60,7 @@ from truckrl.tasks.network.scene import (
     CurriculumConfig,
     NetworkSceneConfig,
     RouteConfig,
+    chunk_pieces,
     generate_episodes,
     point_at,
     route_cumulative,
@@ -76,7 +77,9 @@ INFO_STATE_KEY = "route"
 TRAFFIC_KEYS: tuple[str, ...] = tuple(f"tr_{f}" for f in TRAFFIC_FIELDS)
 #: Route state keys: ``route_points [N, R, 2]`` and ``route_cum [N, R]`` (the resampled route
 #: and its arc length [m]), ``goal_s [N]`` (the goal's arc length [m]) and, updated every step,
-#: ``route_s``, ``route_to_go`` [m] and ``route_heading`` [rad] of the truck's projection.
+#: ``route_s``, ``route_to_go`` [m], ``route_heading`` [rad] and ``route_chunk`` (long: the
+#: stretch of the route, :func:`~truckrl.tasks.network.scene.route_windows`) of the truck's
+#: projection.
 ROUTE_KEYS: tuple[str, ...] = (
     "route_points",
     "route_cum",
@@ -84,7 +87,13 @@ ROUTE_KEYS: tuple[str, ...] = (
     "route_s",
     "route_to_go",
     "route_heading",
+    "route_chunk",
 )
+#: Curb window state keys: the chain's curbs ``net_segments [N, E, 4]`` and ``net_mask [N, E]``
+#: (the scene's, in their slots) and each route stretch's window ``window [N, C, W]`` (curb
+#: slots) and ``window_valid [N, C, W]``; the step's LiDAR and collision read the window of the
+#: truck's stretch instead of every curb of the chain.
+WINDOW_KEYS: tuple[str, ...] = ("net_segments", "net_mask", "window", "window_valid")
 
 
 def _default(cls: type, name: str) -> Any:
@@ -98,7 +107,10 @@ class NetworkTaskConfig(TaskConfig):
 
     name: str = param("network", choices=("network",), doc="task folder")
     scene: NetworkSceneConfig = field(default_factory=NetworkSceneConfig)
-    network: NetworkConfig = field(default_factory=NetworkConfig)
+    #: curbs as polylines within 20 cm of their arcs (the sim's default is 5 cm): the step's
+    #: LiDAR and collision cost grows with the curbs in reach, and a roundabout holds 116 at 5
+    #: cm, 64 at 20 cm (docs/networks.md, "The network task")
+    network: NetworkConfig = field(default_factory=lambda: NetworkConfig(chord_error=0.2))
     traffic: TrafficConfig = field(default_factory=TrafficConfig)
     route: RouteConfig = field(default_factory=RouteConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
@@ -120,7 +132,7 @@ class NetworkTask(PoseGoal, Task):
 
     name = "network"
     config_class = NetworkTaskConfig
-    extra_state_keys = (*TRAFFIC_KEYS, *ROUTE_KEYS)
+    extra_state_keys = (*TRAFFIC_KEYS, *ROUTE_KEYS, *WINDOW_KEYS)
 
     @classmethod
     def category_bins(cls, info: Mapping[str, Tensor]) -> dict[str, dict[str, Tensor]] | None:
@@ -154,9 +166,11 @@ class NetworkTask(PoseGoal, Task):
 
         task = self.cfg.task
         params = self.sample_params(m, rng, device)
+        reach = self.cfg.lidar.max_range + task.scene.window_slack
         ch = generate_episodes(
-            task.scene, task.network, task.traffic, task.route, self.levels, params, rng, device
-        )
+            task.scene, task.network, task.traffic, task.route, self.levels, params, rng, device,
+            reach,
+        )  # fmt: skip
         net, tr = ch.network, ch.traffic
         scene = {
             "start": ch.start_options[:, 0],
@@ -170,6 +184,10 @@ class NetworkTask(PoseGoal, Task):
             state[f"tr_{f}"] = getattr(tr, f)
         state["route_points"] = ch.route_points
         state["route_cum"] = ch.route_cum
+        state["net_segments"] = net.segments
+        state["net_mask"] = net.mask.clone()
+        state["window"] = ch.window
+        state["window_valid"] = ch.window_valid
         # the curriculum's inputs (read by on_reset only)
         state["segment_block"] = net.segment_block
         state["block_type"] = net.block_type
@@ -191,13 +209,20 @@ class NetworkTask(PoseGoal, Task):
         if "tr_lanes" not in keys:
             for k, v in empty_traffic(n, self.cfg.task.traffic.max_vehicles, dev).items():
                 state[k] = v
+        if "window" not in keys:  # one window: every curb
+            e = state["segments"].shape[1]
+            state["net_segments"] = state["segments"]
+            state["net_mask"] = state["mask"].clone()
+            state["window"] = torch.arange(e, device=dev).expand(n, 1, e).clone()
+            state["window_valid"] = torch.ones(n, 1, e, dtype=torch.bool, device=dev)
         if "route_points" not in keys:
             f = torch.linspace(0.0, 1.0, self.cfg.task.route.points, device=dev).view(1, -1, 1)
             a, b = state["pose"][:, None, :2], state["goal"][:, None, :2]
             state["route_points"] = a + f * (b - a)
             state["route_cum"] = route_cumulative(state["route_points"])
         if "goal_s" not in keys:
-            state["goal_s"] = project(state["route_points"], state["route_cum"], state["goal"])[0]
+            goal = state["goal"]
+            state["goal_s"] = project(state["route_points"], state["route_cum"], goal)[0]
         if "route_s" not in keys:
             for k, v in route_state(state).items():
                 state[k] = v
@@ -216,6 +241,7 @@ class NetworkTask(PoseGoal, Task):
         start = state["start_options"][rows, first_link]
         state["pose"] = torch.cat((start, torch.zeros_like(start[:, :1])), -1)
         state["mask"] = state["mask"] & (state["segment_block"] >= first_block.unsqueeze(-1))
+        state["net_mask"] = state["net_mask"] & state["mask"]
         K = state["block_type"].shape[1]
         lanes_per_block = state["tr_lanes"].shape[1] // K
         fb = first_block.unsqueeze(-1)
@@ -234,7 +260,10 @@ class NetworkTask(PoseGoal, Task):
         info["level"] = level.float()
         for k, v in info.items():
             state[INFO_STATE_KEY, k] = v
-        return state
+        # fresh storage: the rows come as slices of the episode pool, whose storage offsets
+        # change from reset to reset, and a compiled observation of them (env.compile) guards
+        # on those offsets and would compile again for each
+        return state.clone()
 
     # ------------------------------------------------------------------ step
     def step(self, s: dict[str, Any], action: Tensor) -> dict[str, Tensor]:
@@ -251,12 +280,19 @@ class NetworkTask(PoseGoal, Task):
         return new
 
     def with_traffic(self, s: Mapping[str, Any]) -> dict[str, Any]:
-        """``s`` with the vehicles' outlines appended to ``segments`` and ``mask``."""
+        """``s`` with ``segments`` and ``mask`` the curbs of the truck's route stretch (its
+        window) and the vehicles' outlines."""
         seg, mask = traffic_segments(traffic_of(s))
+        window, valid = s["window"], s["window_valid"]
+        n, _, w = window.shape
+        at = s["route_chunk"].view(n, 1, 1).expand(n, 1, w)
+        idx = window.gather(1, at).squeeze(1)  # [n, w] curb slots
+        curbs = s["net_segments"].gather(1, idx.unsqueeze(-1).expand(n, w, 4))
+        curb_mask = s["net_mask"].gather(1, idx) & valid.gather(1, at).squeeze(1)
         return {
             **s,
-            "segments": torch.cat((s["segments"], seg), 1),
-            "mask": torch.cat((s["mask"], mask), 1),
+            "segments": torch.cat((curbs, seg), 1),
+            "mask": torch.cat((curb_mask, mask), 1),
         }
 
     def outcome(self, s: dict[str, Any], difficulty: Tensor) -> dict[str, Tensor]:
@@ -317,10 +353,10 @@ def empty_traffic(n: int, m: int, device) -> dict[str, Tensor]:
     return {f"tr_{k}": v for k, v in out.items()}
 
 
-def project(points: Tensor, cum: Tensor, pose: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def project(points: Tensor, cum: Tensor, pose: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """The nearest point of route polylines ``points [N, R, 2]`` (arc lengths ``cum [N, R]``)
-    to ``pose[:, :2]``: its arc length [m], the distance to it [m] and the heading of its piece
-    [rad], each ``[N]``."""
+    to ``pose[:, :2]``: its arc length [m], the distance to it [m], the heading of its piece
+    [rad] and the piece's index (long), each ``[N]``."""
     a, b = points[:, :-1], points[:, 1:]
     ab = b - a
     length2 = (ab * ab).sum(-1).clamp_min(1e-12)
@@ -332,17 +368,21 @@ def project(points: Tensor, cum: Tensor, pose: Tensor) -> tuple[Tensor, Tensor, 
     t_i = t.gather(1, i).squeeze(1)
     seg = ab.gather(1, i.unsqueeze(-1).expand(-1, 1, 2)).squeeze(1)
     s = cum.gather(1, i).squeeze(1) + t_i * seg.norm(dim=-1)
-    return s, d2.gather(1, i).squeeze(1).sqrt(), torch.atan2(seg[:, 1], seg[:, 0])
+    heading = torch.atan2(seg[:, 1], seg[:, 0])
+    return s, d2.gather(1, i).squeeze(1).sqrt(), heading, i.squeeze(1)
 
 
 def route_state(s: Mapping[str, Any]) -> dict[str, Tensor]:
     """``route_s``, ``route_to_go`` (``|goal_s - route_s|`` plus the distance from the route)
-    [m] and ``route_heading`` [rad] of the truck's projection (``{key: [N]}``)."""
-    along, off, heading = project(s["route_points"], s["route_cum"], s["pose"])
+    [m], ``route_heading`` [rad] and ``route_chunk`` of the truck's projection
+    (``{key: [N]}``)."""
+    along, off, heading, piece = project(s["route_points"], s["route_cum"], s["pose"])
+    group = chunk_pieces(s["route_points"].shape[1], s["window"].shape[1])
     return {
         "route_s": along,
         "route_to_go": (s["goal_s"] - along).abs() + off,
         "route_heading": heading,
+        "route_chunk": (piece // group).clamp_max(s["window"].shape[1] - 1),
     }
 
 

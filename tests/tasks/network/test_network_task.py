@@ -1,0 +1,398 @@
+"""The network task (truckrl/tasks/network/): TorchRL's spec check, start and goal feasibility
+against a numpy oracle, route progress by hand, traffic that never overlaps itself or the truck,
+touching a vehicle as a collision, the curriculum and the evaluation bins, one-line config
+errors. The golden rollout is tests/tasks/network/test_network_golden.py."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.envs.utils import check_env_specs
+
+from tests.sim.network.test_traffic import corners, overlapping_pairs, poses
+from truckrl.config.fields import ConfigError
+from truckrl.env import TruckEnv
+from truckrl.tasks import EnvConfig, make_task
+from truckrl.tasks.network.bins import network_bins
+from truckrl.tasks.network.task import project, route_errors, route_state
+
+#: Small pools: every env here draws few episodes.
+POOL = 16
+
+
+def network_env(n=4, seed=0, **task) -> TruckEnv:
+    config = {"task": {"name": "network", **task}, "episode_pool": POOL, "max_steps": 60}
+    return TruckEnv(num_envs=n, config=config, seed=seed)
+
+
+@pytest.fixture(scope="module")
+def sampled():
+    """64 episodes of the whole chain, as the task core draws them (no env)."""
+    task = make_task(EnvConfig(task={"name": "network"}))
+    return task, task.sample(64, torch.Generator().manual_seed(7), torch.device("cpu"))
+
+
+# ------------------------------------------------------------------------------ numpy oracle
+def extents(p: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Front and rear reach from the tractor rear axle and half width of a straight truck [m]
+    (the vehicle layout of docs/environment.md: the trailer's axle ``kingpin_offset +
+    trailer_wheelbase`` behind the tractor's, its rear overhang behind that)."""
+    front = np.maximum(
+        p["wheelbase"] + p["front_overhang"], p["trailer_front_overhang"] - p["kingpin_offset"]
+    )
+    rear = np.maximum(
+        p["rear_overhang"],
+        p["kingpin_offset"] + p["trailer_wheelbase"] + p["trailer_rear_overhang"],
+    )
+    return front, rear, 0.5 * np.maximum(p["tractor_width"], p["trailer_width"])
+
+
+def footprint(pose: np.ndarray, front, rear, half) -> np.ndarray:
+    """``[4, 2]`` corners of the straight truck at ``pose (x, y, heading)``."""
+    mid = pose[:2] + 0.5 * (front - rear) * np.array([math.cos(pose[2]), math.sin(pose[2])])
+    return corners(mid, np.array(pose[2]), np.array(front + rear), np.array(2 * half))
+
+
+def seg_hits_box(seg: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """``[E]`` bool: segments ``[E, 4]`` touch the convex box with corners ``c [4, 2]`` (an
+    end inside, or a proper crossing of an edge)."""
+
+    def inside(p):
+        e = np.roll(c, -1, 0) - c
+        rel = p[:, None, :] - c[None]
+        crs = e[None, :, 0] * rel[..., 1] - e[None, :, 1] * rel[..., 0]
+        return (crs >= 0).all(-1) | (crs <= 0).all(-1)
+
+    a, b = seg[:, :2], seg[:, 2:]
+    hit = inside(a) | inside(b)
+    for k in range(4):
+        p, q = c[k], c[(k + 1) % 4]
+
+        def orient(u, v, w):
+            return (v[..., 0] - u[..., 0]) * (w[..., 1] - u[..., 1]) - (v[..., 1] - u[..., 1]) * (
+                w[..., 0] - u[..., 0]
+            )
+
+        d1, d2 = orient(a, b, p[None]), orient(a, b, q[None])
+        d3, d4 = orient(p[None], q[None], a), orient(p[None], q[None], b)
+        hit |= (d1 * d2 < 0) & (d3 * d4 < 0)
+    return hit
+
+
+def polyline_distance(p: np.ndarray, pts: np.ndarray) -> tuple[float, float]:
+    """Distance from ``p`` to the polyline ``pts [Q, 2]`` and the heading of the nearest piece."""
+    a, b = pts[:-1], pts[1:]
+    ab = b - a
+    L2 = np.maximum((ab**2).sum(-1), 1e-12)
+    t = np.clip(((p - a) * ab).sum(-1) / L2, 0, 1)
+    d = np.linalg.norm(p - (a + t[:, None] * ab), axis=-1)
+    d = np.where((ab**2).sum(-1) > 1e-12, d, np.inf)
+    k = int(np.argmin(d))
+    return float(d[k]), math.atan2(ab[k, 1], ab[k, 0])
+
+
+def numpy_of(state) -> dict:
+    """The state's leaves as numpy (floats as float64), nested keys joined by ``/``."""
+    out = {}
+    for k, v in state.items(include_nested=True, leaves_only=True):
+        name = "/".join(k) if isinstance(k, tuple) else k
+        out[name] = v.numpy().astype(np.float64) if v.is_floating_point() else v.numpy()
+    return out
+
+
+def truck_of(s: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`extents` of the trucks of a numpy state."""
+    return extents({k[len("params/") :]: v for k, v in s.items() if k.startswith("params/")})
+
+
+def vehicle_corners(state) -> tuple[np.ndarray, np.ndarray]:
+    """Vehicle corners ``[n, M, 4, 2]`` walked along the lanes in numpy, and which are on the
+    road."""
+    net = SimpleNamespace(lanes=state["tr_lanes"])
+    tr = SimpleNamespace(lane=state["tr_lane"], s=state["tr_s"])
+    xy, heading = poses(net, tr)
+    c = corners(
+        xy, heading, state["tr_length"].double().numpy(), state["tr_width"].double().numpy()
+    )
+    return c, (state["tr_active"] & ~state["tr_waiting"]).numpy()
+
+
+# ------------------------------------------------------------------------------------ tests
+def test_env_specs_observation_and_bins():
+    env = network_env()
+    check_env_specs(env, seed=0)
+    td = env.reset()
+    assert td["observation"].shape == (4, 26 + 8)  # 4 route points ahead, x and y each
+    info = {k: v for k, v in env.get_state()["route"].items()}
+    bins = env.task.category_bins(info)
+    assert set(bins) == {
+        "block types on the route",
+        "junctions",
+        "traffic [vehicles / 100 m of lane]",
+        "turns at junctions",
+    }
+    env.close()
+
+
+def test_start_and_goal_are_feasible_by_a_numpy_oracle(sampled):
+    """Every start option in use and the goal: on a lane centre-line facing along it, no curb
+    touching the straight truck, outside every junction disc, and no vehicle spawned on it."""
+    task, state = sampled
+    assert bool(state["route", "feasible"].all())
+    s = numpy_of(state)
+    front, rear, half = truck_of(s)
+    veh, on_road = vehicle_corners(state)
+    n = state.shape[0]
+    for i in range(n):
+        lanes = s["tr_lanes"][i][s["tr_lane_len"][i] > 0]
+        curbs = s["segments"][i][s["mask"][i]]
+        zc, zr = (
+            s["tr_zone_centre"][i][s["tr_zone_mask"][i]],
+            s["tr_zone_radius"][i][s["tr_zone_mask"][i]],
+        )
+        for pose in (s["start_options"][i, 0], s["start_options"][i, 1], s["goal"][i]):
+            best = min(polyline_distance(pose[:2], lane) for lane in lanes)
+            assert best[0] < 1e-3, (i, pose, best)
+            assert abs(math.remainder(best[1] - pose[2], 2 * math.pi)) < 1e-3, (i, pose, best)
+            box = footprint(pose, front[i], rear[i], half[i])
+            assert not seg_hits_box(curbs, box).any(), (i, pose)
+            for c, r in zip(
+                zc, zr, strict=True
+            ):  # box to disc: the disc's centre clamped into the box
+                u = np.array([math.cos(pose[2]), math.sin(pose[2])])
+                rel = c - pose[:2]
+                along = np.clip(rel @ u, -rear[i], front[i])
+                across = np.clip(rel @ np.array([-u[1], u[0]]), -half[i], half[i])
+                nearest = pose[:2] + along * u + across * np.array([-u[1], u[0]])
+                assert np.linalg.norm(c - nearest) >= r, (i, pose, c, r)
+            both = np.concatenate((box[None], veh[i][on_road[i]]))[None]
+            hit = overlapping_pairs(both, np.ones(both.shape[:2], dtype=bool))
+            assert not hit[0, 0].any(), (i, pose)
+
+
+def test_route_progress_by_hand():
+    """An L-shaped route (0, 0) -> (10, 0) -> (10, 10), goal at its end: at (4, 1) the truck is
+    4 m along it and 1 m off, 16 + 1 m to go; at (11, 6), 16 m along, 1 m off, 4 + 1 to go; the
+    step between earns 0.05 x 12 m of progress and, turning from 0 to 90 deg with the route,
+    0.5 x (0 - pi/2) for the tractor (heading to the route's heading 0 -> ... -> 0)."""
+    points = torch.tensor([[[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]])
+    cum = torch.tensor([[0.0, 10.0, 20.0]])
+    window = torch.zeros(1, 1, 1, dtype=torch.long)
+    base = {
+        "route_points": points,
+        "route_cum": cum,
+        "goal_s": torch.tensor([20.0]),
+        "window": window,
+    }
+    a = {**base, "pose": torch.tensor([[4.0, 1.0, 0.0, 0.0]])}
+    b = {**base, "pose": torch.tensor([[11.0, 6.0, math.pi / 2, 0.0]])}
+    ra, rb = route_state(a), route_state(b)
+    assert ra["route_s"].item() == pytest.approx(4.0) and ra["route_to_go"].item() == pytest.approx(
+        17.0
+    )
+    assert rb["route_s"].item() == pytest.approx(16.0) and rb[
+        "route_to_go"
+    ].item() == pytest.approx(5.0)
+    assert rb["route_heading"].item() == pytest.approx(math.pi / 2)
+    s, off, _, piece = project(points, cum, torch.tensor([[10.5, 9.0, 0.0]]))
+    assert (s.item(), off.item(), piece.item()) == (pytest.approx(19.0), pytest.approx(0.5), 1)
+    task = make_task(EnvConfig(task={"name": "network"}))
+    flags = {k: torch.tensor([False]) for k in ("success", "collision", "jackknife", "truncated")}
+    terms = task.reward_terms({**a, **ra}, {**b, **rb}, flags)
+    assert terms["r_progress"].item() == pytest.approx(0.05 * 12.0)
+    assert terms["r_tractor_heading"].item() == pytest.approx(0.0, abs=1e-6)
+    assert route_errors({**b, **rb})["tractor_heading_error"].item() == pytest.approx(0.0, abs=1e-6)
+
+
+def test_traffic_never_overlaps_itself_or_the_standing_truck():
+    """Dense traffic, the truck braking at its start: over 80 steps no two vehicles overlap and
+    none overlaps the truck (numpy separating-axis test on the boxes' corners)."""
+    env = network_env(
+        n=8,
+        seed=3,
+        traffic={"density": [4.0, 6.0]},
+        curriculum={"difficulty": [0.0], "junctions": [2], "traffic": [1.0]},
+    )
+    env.reset()
+    brake = torch.tensor([[-1.0, 0.0]] * 8)
+    moved = 0.0
+    for _ in range(80):
+        before = env.get_state()["tr_s"].clone()
+        env.step(TensorDict({"action": brake}, batch_size=[8]))
+        st = env.get_state()
+        moved += float((st["tr_s"] - before).abs().sum())
+        c, on = vehicle_corners(st)
+        assert not overlapping_pairs(c, on).any()
+        s = numpy_of(st)
+        front, rear, half = truck_of(s)
+        for i in range(8):
+            box = footprint(s["pose"][i, :3], front[i], rear[i], half[i])
+            both = np.concatenate((box[None], c[i][on[i]]))[None]
+            assert not overlapping_pairs(both, np.ones(both.shape[:2], dtype=bool))[0, 0].any()
+    assert moved > 100.0  # the traffic did drive
+    env.close()
+
+
+def test_touching_a_vehicle_ends_the_episode_as_a_collision():
+    """A car parked (desired speed ~0) on the truck's lane 3 m ahead of its front bumper: full
+    throttle drives into it, and the episode ends as a collision (terminated) after the truck
+    has covered the gap; the same drive without the car has no collision."""
+
+    def drive(with_car: bool):
+        env = network_env(n=1, seed=5, traffic={"max_vehicles": 2})
+        env.reset()
+        st = env.get_state()
+        s = numpy_of(st)
+        front, _, _ = truck_of(s)
+        # the truck's lane: the lane its rear axle lies on, facing its way (numpy)
+        lanes = s["tr_lanes"][0]
+        best = min(
+            (
+                polyline_distance(s["pose"][0, :2], lane) + (k,)
+                for k, lane in enumerate(lanes)
+                if s["tr_lane_len"][0, k] > 0
+                and abs(
+                    math.remainder(
+                        polyline_distance(s["pose"][0, :2], lane)[1] - s["pose"][0, 2], 2 * math.pi
+                    )
+                )
+                < 1e-3
+            ),
+        )
+        k = best[2]
+        along = np.cumsum(np.r_[0.0, np.linalg.norm(np.diff(lanes[k], axis=0), axis=-1)])
+        seg = int(np.searchsorted(along, 0.0, side="right"))
+        # arc length of the rear axle on lane k: project onto its pieces
+        a, b = lanes[k][:-1], lanes[k][1:]
+        ab = b - a
+        tt = np.clip(
+            ((s["pose"][0, :2] - a) * ab).sum(-1) / np.maximum((ab**2).sum(-1), 1e-12), 0, 1
+        )
+        d = np.linalg.norm(s["pose"][0, :2] - (a + tt[:, None] * ab), axis=-1)
+        j = int(np.argmin(d))
+        s_axle = along[j] + tt[j] * np.linalg.norm(ab[j])
+        del seg
+        length = 4.5
+        st["tr_active"][0] = torch.tensor([with_car, False])
+        st["tr_waiting"][0] = False
+        st["tr_lane"][0, 0] = k
+        st["tr_home"][0, 0] = k
+        st["tr_s"][0, 0] = float(s_axle + front[0] + 3.0 + length / 2)
+        st["tr_v"][0, 0] = 0.0
+        st["tr_v0"][0, 0] = 1e-3
+        st["tr_length"][0, 0] = length
+        st["tr_width"][0, 0] = 1.8
+        env.set_state(st)
+        go = TensorDict({"action": torch.tensor([[1.0, 0.0]])}, batch_size=[1])
+        steps = 0
+        while steps < 40:
+            out = env.step(go)["next"]
+            steps += 1
+            if out["done"].item():
+                break
+        result = (bool(out["collision"].item()), bool(out["terminated"].item()), steps)
+        env.close()
+        return result
+
+    hit, ended, step = drive(True)
+    assert hit and ended and step >= 3  # 3 m to cover first
+    hit, ended, _ = drive(False)
+    assert not hit
+
+
+def test_curriculum_routes_through_more_junctions_with_more_traffic():
+    """At difficulty 0 (level 0: 1 junction, no traffic) the route has 3 blocks and no vehicle
+    drives; at 3 (2 junctions, every vehicle) 5 blocks; the blocks behind the start are out of
+    the scene (no curb of theirs in the mask)."""
+    env = network_env(n=16, seed=1)
+    env.set_difficulty(0.0)
+    env.reset()
+    st = env.get_state()
+    assert (st["route", "junctions"] == 1).all() and (st["route", "blocks"] == 3).all()
+    assert not st["tr_active"].any() and (st["route", "traffic_density"] == 0).all()
+    assert not (st["mask"] & (st["segment_block"] < 2)).any()
+    assert (st["mask"] & (st["segment_block"] == 2)).any(-1).all()
+    env.set_difficulty(3.0)
+    env.reset()
+    st = env.get_state()
+    assert (st["route", "junctions"] == 2).all() and (st["route", "blocks"] == 5).all()
+    assert st["tr_active"].any()
+    # the start of a 2-junction route lies on the chain's first link, ahead of the 1-junction one
+    assert (st["route", "route_length"] > 0).all()
+    env.close()
+
+
+def test_bins_by_hand():
+    info = {
+        f"has_{k}": torch.tensor(v)
+        for k, v in {
+            "straight": [1.0, 0.0, 1.0],
+            "curve": [0.0, 1.0, 0.0],
+            "crossing": [1.0, 0.0, 0.0],
+            "t_junction": [0.0, 0.0, 1.0],
+            "roundabout": [0.0, 1.0, 1.0],
+            "median": [0.0, 0.0, 0.0],
+        }.items()
+    }
+    info |= {
+        "junctions": torch.tensor([1.0, 1.0, 2.0]),
+        "traffic_density": torch.tensor([0.0, 0.5, 1.5]),
+        "turns_straight": torch.tensor([1.0, 0.0, 0.0]),
+        "turns_left": torch.tensor([0.0, 1.0, 1.0]),
+        "turns_right": torch.tensor([0.0, 0.0, 1.0]),
+    }
+    b = network_bins(info)
+    assert b["block types on the route"]["roundabout"].tolist() == [False, True, True]
+    assert b["block types on the route"]["median"].tolist() == [False, False, False]
+    assert {k: v.tolist() for k, v in b["junctions"].items()} == {
+        "0": [False, False, False],
+        "1": [True, True, False],
+        "2": [False, False, True],
+    }
+    traffic = {k: v.tolist() for k, v in b["traffic [vehicles / 100 m of lane]"].items()}
+    assert traffic == {
+        "0": [True, False, False],
+        "0-1": [False, True, False],
+        "1-2": [False, False, True],
+        "2-20": [False, False, False],
+    }
+    assert b["turns at junctions"]["right"].tolist() == [False, False, True]
+
+
+@pytest.mark.parametrize(
+    ("task", "needle"),
+    [
+        (
+            {"curriculum": {"junctions": [1, 2]}},
+            "env.task.curriculum: difficulty, junctions and traffic must have one value per level",
+        ),
+        (
+            {"curriculum": {"difficulty": [0.0, 2.0, 1.0, 3.0]}},
+            "env.task.curriculum.difficulty = [0.0, 2.0, 1.0, 3.0]: must start at 0 and increase",
+        ),
+        (
+            {"network": {"num_blocks": [2, 4]}},
+            "env.task.network.num_blocks = [2, 4]: not read by the network task",
+        ),
+        (
+            {"network": {"block_types": ["straight", "curve"]}},
+            "env.task.network.block_types = ['straight', 'curve']: needs a junction",
+        ),
+        ({"route": {"ahead": 0}}, "env.task.route.ahead = 0 is outside the allowed range"),
+        (
+            {"traffic": {"density": [3.0, 1.0]}},
+            "env.task.traffic.density = [3.0, 1.0]: min must not exceed max",
+        ),
+    ],
+)
+def test_bad_config_is_a_one_line_error(task, needle):
+    with pytest.raises(ConfigError) as e:
+        make_task(EnvConfig(task={"name": "network", **task})).sample(
+            2, torch.Generator().manual_seed(0), torch.device("cpu")
+        )
+    assert needle in str(e.value) and "\n" not in str(e.value)
