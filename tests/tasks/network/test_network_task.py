@@ -209,28 +209,47 @@ def test_route_progress_by_hand():
     assert route_errors({**b, **rb})["tractor_heading_error"].item() == pytest.approx(0.0, abs=1e-6)
 
 
-def test_traffic_never_overlaps_itself_or_the_standing_truck():
-    """Dense traffic, the truck braking at its start: over 80 steps no two vehicles overlap and
-    none overlaps the truck (numpy separating-axis test on the boxes' corners)."""
+def test_traffic_never_overlaps_itself_or_a_standing_truck():
+    """Dense traffic; in each scene the truck is moved onto the lane of a vehicle, its rear end
+    6 m ahead of it, and brakes there: over 80 steps no two vehicles overlap and none overlaps
+    the truck (numpy separating-axis test on the boxes' corners); the vehicles behind it stop."""
+    n = 8
     env = network_env(
-        n=8,
+        n=n,
         seed=3,
         traffic={"density": [4.0, 6.0]},
         curriculum={"difficulty": [0.0], "junctions": [2], "traffic": [1.0]},
     )
     env.reset()
-    brake = torch.tensor([[-1.0, 0.0]] * 8)
+    st = env.get_state()
+    s = numpy_of(st)
+    front, rear, half = truck_of(s)
+    on = (st["tr_active"] & ~st["tr_waiting"]).numpy()
+    k = on.argmax(1)  # the first vehicle on the road in each scene
+    rows = torch.arange(n)
+    ahead = st["tr_s"][rows, k] + 0.5 * st["tr_length"][rows, k] + torch.tensor(rear) + 6.0
+    lane = SimpleNamespace(lane=st["tr_lane"][rows, k][:, None], s=ahead.float()[:, None])
+    xy, heading = poses(SimpleNamespace(lanes=st["tr_lanes"]), lane)
+    st["pose"] = torch.tensor(np.concatenate((xy[:, 0], heading, 0 * heading), -1)).float()
+    env.set_state(st)
+    c, on = vehicle_corners(env.get_state())
+    clear = []  # scenes where the truck landed on no vehicle
+    for i in range(n):
+        box = footprint(env.get_state()["pose"][i, :3].double().numpy(), front[i], rear[i], half[i])
+        both = np.concatenate((box[None], c[i][on[i]]))[None]
+        clear.append(not overlapping_pairs(both, np.ones(both.shape[:2], dtype=bool))[0, 0].any())
+    assert sum(clear) >= 4
+    brake = TensorDict({"action": torch.tensor([[-1.0, 0.0]] * n)}, batch_size=[n])
     moved = 0.0
     for _ in range(80):
         before = env.get_state()["tr_s"].clone()
-        env.step(TensorDict({"action": brake}, batch_size=[8]))
+        env.step(brake)
         st = env.get_state()
         moved += float((st["tr_s"] - before).abs().sum())
         c, on = vehicle_corners(st)
         assert not overlapping_pairs(c, on).any()
         s = numpy_of(st)
-        front, rear, half = truck_of(s)
-        for i in range(8):
+        for i in np.flatnonzero(clear):
             box = footprint(s["pose"][i, :3], front[i], rear[i], half[i])
             both = np.concatenate((box[None], c[i][on[i]]))[None]
             assert not overlapping_pairs(both, np.ones(both.shape[:2], dtype=bool))[0, 0].any()
