@@ -31,7 +31,7 @@ Poses are the tractor rear axle on a lane centre-line facing along it, trailer a
 **start on link** ``L_i`` (``i < J``) has its rear axle ``rear + start_margin`` along the lane
 from the link's entry (``rear``: the truck's extent behind its rear axle), the **goal** on
 ``L_J`` its rear axle ``front + goal_margin`` before the chain's end (``front``: the extent
-ahead). The start curriculum (:func:`curriculum_reset`) picks the start on ``L_{J-j}`` for a
+ahead). The curriculum (:meth:`~truckrl.tasks.network.task.NetworkTask.on_reset`) picks the start on ``L_{J-j}`` for a
 route through ``j`` junctions. A chain is kept when every one of these poses
 
 * touches no curb (:func:`~truckrl.sim.collision.truck_collides` on the chain's curbs),
@@ -40,14 +40,28 @@ route through ``j`` junctions. A chain is kept when every one of these poses
   junction's road surface),
 * and the goal lies ``min_goal_gap`` or more along the route beyond every start;
 
-and the chain has all ``K`` blocks. Other chains are redrawn, up to ``rounds`` times; a chain
-still failing is kept and marked (``info["feasible"] = 0``); at the defaults none of 4,096 drawn
-is (``tests/tasks/network/test_network_task.py``).
+and the chain has all ``K`` blocks, and no stretch of its route has more than ``window_size``
+curbs in reach (below, "Curb windows"). Other chains are redrawn, up to ``rounds`` times; a
+chain still failing is kept and marked (``info["feasible"] = 0``): 3 of 4,096 episodes drawn at
+the defaults (seed 0). The rule thins some shapes out: among the kept chains curves are 23 % of
+the links (not a third: a straight truck on a tight curve touches its curb) and roundabouts 29 %
+of the junctions (two near each other fill a window).
+
+Curb windows
+------------
+The route is cut into ``window_chunks`` stretches; each holds the curb slots within the LiDAR
+range plus ``window_slack`` of it (:func:`route_windows`), at most ``window_size``. The step's
+LiDAR and collision read only the window of the stretch the truck's rear axle projects onto
+(and every vehicle): the same ranges and contacts as all curbs of the chain while the LiDAR's
+origin (the tractor's centre, a few metres ahead of the rear axle) stays within
+``window_slack`` of that stretch (a curb farther from the origin than the LiDAR range is never
+seen), at a fraction of the cost. A truck that leaves the road through an open road end and
+drives farther than that from the route may miss far curbs in its LiDAR.
 
 Traffic
 -------
-:func:`~truckrl.sim.network.traffic.spawn_traffic` on the chain with every start option and the
-goal reserved (a disc round the truck's footprint midpoint, radius half its length plus
+:func:`~truckrl.sim.network.traffic.spawn_traffic` on the chain with the start options in use and
+the goal reserved (a disc round the truck's footprint midpoint, radius half its length plus
 ``traffic_clearance``), then a uniform draw per vehicle (``keep_draw``): the curriculum keeps a
 vehicle where its draw is below the level's traffic share.
 """
