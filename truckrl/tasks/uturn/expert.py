@@ -340,7 +340,9 @@ def demonstrations(
 #: The task parameters of a gear plan (``planner.search=gears``, :mod:`truckrl.planning.gears`):
 #: (name, value at x = -1, at x = 0, at x = +1), piecewise linear. The ranges span :data:`GRID`
 #: and a margin around it; the rest are the driver's constants (its 0.85 of the branch depth,
-#: its 2.0 and 1.2 m/s), now planned.
+#: its 2.0 and 1.2 m/s, its 3 m ramp back to the goal lane), now planned, and the ``overrun``
+#: of a fourth leg (:func:`gear_legs`). ``overrun`` is 0 (no fourth leg) at and below the mean:
+#: the mean candidate is the three-leg driver.
 GEAR_TASK_PARAMS: tuple[tuple[str, float, float, float], ...] = (
     ("lane_y", -1.8, 0.0, 1.8),  # m
     ("arc_radius", 6.0, 12.0, 20.0),  # m
@@ -350,13 +352,15 @@ GEAR_TASK_PARAMS: tuple[tuple[str, float, float, float], ...] = (
     ("depth", 0.6, 0.85, 0.98),  # of the branch depth
     ("forward_speed", 1.0, 2.0, 3.0),  # m/s
     ("reverse_speed", 0.6, 1.2, 2.0),  # m/s
+    ("exit_ramp", 1.0, 3.0, 20.0),  # m
+    ("overrun", 0.0, 0.0, 16.0),  # m
 )
 #: Vertices per leg path.
 GEAR_PATH_POINTS = 160
 
 
 def gear_prior() -> Tensor:
-    """``[A, 8]`` prior means of the gear plan's task parameters (:data:`GEAR_TASK_PARAMS`) in
+    """``[A, 10]`` prior means of the gear plan's task parameters (:data:`GEAR_TASK_PARAMS`) in
     ``[-1, 1]``: the scripted driver's :data:`DEMO_SETTINGS`, one per attempt in turn (the
     driver's depth and speeds at their nominal values)."""
     from truckrl.planning.gears import piecewise_inverse
@@ -376,9 +380,9 @@ def gear_prior() -> Tensor:
 
 
 def gear_legs(start: TensorDict, x: Tensor) -> dict[str, Tensor]:
-    """The scripted turnaround's three legs as paths (:func:`truckrl.planning.gears`'s
-    contract), for candidates ``x [N, 8]`` (:data:`GEAR_TASK_PARAMS`) from road starts ``start
-    [N]``.
+    """The scripted turnaround's three legs and a final reverse as paths
+    (:func:`truckrl.planning.gears`'s contract), for candidates ``x [N, 10]``
+    (:data:`GEAR_TASK_PARAMS`) from road starts ``start [N]``.
 
     1. Forward: the tractor rear axle along the lane ``y = lane_y`` (the scene frame of
        :class:`TurnaroundDriver`) until the trailer axle is ``pass_margin`` past where the
@@ -387,10 +391,18 @@ def gear_legs(start: TensorDict, x: Tensor) -> dict[str, Tensor]:
        arc of ``arc_radius`` onto the branch axis, up the axis) to ``depth`` of the branch depth
        beyond the curb.
     3. Forward: the tractor rear axle along the goal lane, ``exit_shift`` nearer the road's
-       centre until ``shift_until`` before the goal (a 3 m ramp), to the goal.
+       centre until ``shift_until`` before the goal (an ``exit_ramp`` long ramp), to
+       ``overrun`` past the goal.
+    4. Reverse: the trailer axle straight back along the goal lane to where it is when the
+       tractor rear axle is at the goal (no length where ``overrun = 0``). Why: on a
+       right-branch scene the goal lane is the road's far lane, the exit turn from the branch
+       ends closer to the goal and the trailer still trails it by tens of degrees there, more
+       than the straight to the goal takes out (it decays over about a trailer wheelbase per
+       e-fold); pulling past and reversing back lines the trailer up on the lane, as the
+       ``dock`` expert's final reverse does.
 
     Returns:
-        ``{"gear" [N, 3], "speed" [N, 3] (m/s), "path" [N, 3, GEAR_PATH_POINTS, 2] (m, world)}``.
+        ``{"gear" [N, 4], "speed" [N, 4] (m/s), "path" [N, 4, GEAR_PATH_POINTS, 2] (m, world)}``.
     """
     from truckrl.planning.gears import piecewise
 
@@ -423,20 +435,26 @@ def gear_legs(start: TensorDict, x: Tensor) -> dict[str, Tensor]:
     su = torch.linspace(0.0, 1.0, k + 1, device=dev)[None, 1:]
     up = arc[:, -1:] + (up_len[:, None] * su)[..., None] * axis[:, None]
     leg2 = torch.cat((back, arc, up), 1)
-    # 3: forward along the goal lane to the goal
+    # 3: forward along the goal lane to the goal (overrun past it); 4: reverse back to it
     gx, gy = drv.goal[:, 0], drv.goal[:, 1]
+    ov = v["overrun"]
     x0 = torch.maximum(gx + v["shift_until"] + 30.0, zero + 30.0)
-    xs = x0[:, None] + s * (gx - x0)[:, None]
-    ramp = ((xs - (gx + v["shift_until"])[:, None]) / 3.0).clamp(0.0, 1.0)
+    xs = x0[:, None] + s * (gx - ov - x0)[:, None]
+    ramp = ((xs - (gx + v["shift_until"])[:, None]) / v["exit_ramp"][:, None]).clamp(0.0, 1.0)
     ys = gy[:, None] - (torch.sign(gy) * v["exit_shift"])[:, None] * ramp
     leg3 = torch.stack((xs, ys), -1)
-    local = torch.stack((leg1, leg2, leg3), 1)  # [N, 3, M, 2] mirrored scene frame
+    xa = gx + hitch  # the goal truck's trailer axle (it faces -x)
+    lead = ov + torch.minimum(ov, zero + 2.0)  # from 2 m before the axle at the switch
+    x4 = (xa - lead)[:, None] + s * lead[:, None]
+    leg4 = torch.stack((x4, gy[:, None] + 0 * s), -1)
+    local = torch.stack((leg1, leg2, leg3, leg4), 1)  # [N, 4, M, 2] mirrored scene frame
     c, sn = drv.heading.cos()[:, None, None], drv.heading.sin()[:, None, None]
     lx, ly = local[..., 0], drv.side[:, None, None] * local[..., 1]
     world = torch.stack((c * lx - sn * ly, sn * lx + c * ly), -1) + drv.origin[:, None, None]
     ones = torch.ones(n, device=dev)
+    vf, vr = v["forward_speed"], v["reverse_speed"]
     return {
-        "gear": torch.stack((ones, -ones, ones), -1),
-        "speed": torch.stack((v["forward_speed"], v["reverse_speed"], v["forward_speed"]), -1),
+        "gear": torch.stack((ones, -ones, ones, -ones), -1),
+        "speed": torch.stack((vf, vr, vf, vr), -1),
         "path": world,
     }
