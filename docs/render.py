@@ -397,6 +397,18 @@ def eval_tables(doc: dict[str, Any]) -> dict[str, Table]:
             rows.append([dim, c["bin"], f"{c['count']:,}", *(pct(c.get(k)) for k in rates)])
         header = ["dimension", "bin", "episodes", "success", "collision", "jack-knife", "timeout"]
         tables["-bins"] = (header, rows)
+    sm = doc.get("smoothness")
+    if sm:
+        pcts = sorted({int(k.rsplit("_p", 1)[1]) for k in sm if "_p" in k})
+        quantities = list(dict.fromkeys(k.rsplit("_p", 1)[0] for k in sm if "_p" in k))
+        header = [f"magnitude over {sm['steps']:,} steps of successes", *(f"p{q}" for q in pcts)]
+        rows = []
+        for q in quantities:  # "<name>_<unit>", units hold no underscore
+            name, unit = q.rsplit("_", 1)
+            rows.append(
+                [f"{name.replace('_', ' ')} [{unit}]", *(num(sm[f"{q}_p{p}"]) for p in pcts)]
+            )
+        tables["-smoothness"] = (header, rows)
     return tables
 
 

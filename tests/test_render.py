@@ -129,3 +129,21 @@ def test_an_unknown_file_is_refused_by_name(render, tmp_path):
     (data / "odd.json").write_text('{"rows": []}')
     with pytest.raises(SystemExit, match="odd.json: not a seeds aggregate"):
         render.render(data, tmp_path / "out")
+
+
+def test_an_evaluation_with_smoothness_gets_its_percentile_table(render):
+    doc = {
+        "difficulty": 6.0, "tolerance_position_m": 0.46875, "tolerance_heading_deg": 0.9375,
+        "episodes": 10, "success_rate": 0.5, "collision_rate": 0.5, "jackknife_rate": 0.0,
+        "timeout_rate": 0.0, "categories": [],
+        "smoothness": {"steps": 1234, "jerk_m/s^3_p50": 0.5, "jerk_m/s^3_p95": 3.25,
+                       "steer_rate_rad/s_p50": 0.0125, "steer_rate_rad/s_p95": 0.5},
+    }  # fmt: skip
+    table = render.fragments(doc)["-smoothness"].split("\n\n")[0]
+    assert table == (
+        "| magnitude over 1,234 steps of successes | p50 | p95 |\n"
+        "|---|---:|---:|\n"
+        "| jerk [m/s^3] | 0.5 | 3.25 |\n"
+        "| steer rate [rad/s] | 0.0125 | 0.5 |"
+    )
+    assert "-smoothness" not in render.fragments({**doc, "smoothness": None})
