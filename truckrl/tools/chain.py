@@ -1,0 +1,266 @@
+"""``python -m truckrl.tools.chain``: a policy trained on one intersection, driven through road
+networks by the route's junction exits as sub-goals (issue 42, item 4; docs/chaining.md).
+
+    python -m truckrl.tools.chain                      # pretrained:intersection, defaults below
+    python -m truckrl.tools.chain episodes=20 junctions=[2] traffic=[1.0] out=null
+
+Loads ``checkpoint`` (a policy whose task observes the shared 26 features and no extras, as the
+intersection task does), builds the sub-goal view of the network task
+(:mod:`truckrl.tasks.network.cells`) with the policy's vehicle, LiDAR (its beam count), control,
+``dt`` and tolerances, and runs :func:`~truckrl.evaluation.rollout.evaluate_policy` (mean
+action, one episode per scene) on ``episodes`` held-out scenes of ``seed`` at ``difficulty``,
+once per route length in ``junctions`` and traffic share in ``traffic``. The route length is
+the network task's curriculum fixed to one level (``env.task.curriculum.junctions=[j]``); a
+traffic share of 0 keeps the spawned vehicles out of the same scenes (the same seed draws the
+same chains, trucks and vehicles; the share only decides which drive), so the traffic's part in
+the failures is the difference. ``control=true`` adds, per route length with the first traffic
+share, the same scenes with the final goal shown from the start (no sub-goals).
+
+Prints, per run, the outcome rates, the sub-goals the failed episodes had passed, the network
+task's bins and route length [m] bins, and writes everything with its provenance to ``out``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from truckrl.config.fields import ConfigError, param, validate
+from truckrl.tasks import MAX_DIFFICULTY
+
+PROG = "python -m truckrl.tools.chain"
+ABOUT = "An intersection policy driven through networks by junction-exit sub-goals."
+
+#: Route length bin edges [m] (the network task's routes are about 80-350 m per its preset).
+ROUTE_LENGTH_EDGES: tuple[float, ...] = (0.0, 150.0, 250.0, 350.0, 1000.0)
+#: Dimension name of the route length bins.
+ROUTE_LENGTH_DIM = "route length [m]"
+
+
+@dataclass
+class ChainConfig:
+    """Which policy, on which scenes, with which sub-goals."""
+
+    checkpoint: str = param(
+        "pretrained:intersection", doc="checkpoint file, run dir or pretrained[:task]"
+    )
+    episodes: int = param(200, lo=1, hi=100_000, unit="episodes", doc="held-out scenes per run")
+    seed: int = param(12345, lo=0, hi=2**62, doc="scene seed (evaluate's, no training uses it)")
+    difficulty: float = param(
+        4.0, lo=0.0, hi=MAX_DIFFICULTY, doc="tolerances 30 m and 60 deg times 2**-difficulty"
+    )
+    junctions: tuple[int, ...] = param(
+        (1, 2, 3), lo=1, hi=16, min_len=1, unit="-", doc="route lengths, one run each"
+    )
+    traffic: tuple[float, ...] = param(
+        (1.0, 0.0), lo=0.0, hi=1.0, min_len=1, unit="-",
+        doc="shares of the spawned vehicles that drive, one run each",
+    )  # fmt: skip
+    past_exit: float = param(
+        20.0, lo=0.0, hi=1000.0, unit="m", doc="env.task.subgoal.past_exit of every run"
+    )
+    switch: float = param(
+        5.0, lo=0.0, hi=1000.0, unit="m", doc="env.task.subgoal.switch of every run"
+    )
+    control: bool = param(False, doc="also run each route length without sub-goals")
+    max_steps: int = param(
+        1000, lo=1, hi=1_000_000, unit="steps", doc="episode limit (experiment=network's)"
+    )
+    failures: int = param(
+        8, lo=0, hi=10_000, unit="episodes", doc="failed episodes per run described in the JSON"
+    )
+    threads: int = param(1, lo=1, hi=1024, doc="torch CPU threads")
+    out: str | None = param(
+        "docs/data/results/chain-intersection.json", doc="JSON file; null: none"
+    )
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+
+def chain_env(base, cfg: ChainConfig, junctions: int, share: float, subgoals: bool = True):
+    """The sub-goal network env of ``base`` (a policy's :class:`~truckrl.tasks.EnvConfig`): its
+    vehicle, LiDAR, control, ``dt`` and tolerances, routes through ``junctions`` junctions
+    with ``share`` of the spawned vehicles driving."""
+    from truckrl.tasks.network.cells.task import CellsTaskConfig, SubgoalConfig
+    from truckrl.tasks.network.scene import CurriculumConfig
+
+    task = CellsTaskConfig(
+        curriculum=CurriculumConfig(difficulty=(0.0,), junctions=(junctions,), traffic=(share,)),
+        subgoal=SubgoalConfig(past_exit=cfg.past_exit, switch=cfg.switch, junctions=subgoals),
+    )
+    return replace(base, max_steps=cfg.max_steps, compile=False, task=task)
+
+
+def check_policy(policy, checkpoint: str) -> None:
+    """Raise ``ConfigError`` unless the policy observes the intersection task's layout."""
+    from truckrl.tasks import make_task
+    from truckrl.tasks.base import NUM_FEATURES
+
+    extras = make_task(policy.env_config).num_extras
+    if extras:
+        raise ConfigError(
+            f"checkpoint = {checkpoint!r}: its task {policy.env_config.task.name!r} observes "
+            f"{NUM_FEATURES} + {extras} features; the sub-goal view gives {NUM_FEATURES} (the "
+            f"intersection task's layout)"
+        )
+
+
+def subgoals_passed(states, path, switch: float):
+    """Per episode ``[E]`` (long): the junction sub-goals the truck passed (the switching rule
+    on its furthest route projection along ``path [E, T + 1, 4]``) beyond those behind its
+    start, and the furthest projection [m]."""
+    import torch
+
+    from truckrl.tasks.network.cells.task import advance
+    from truckrl.tasks.network.task import project
+
+    e, t1 = path.shape[:2]
+    pts, cum = states["route_points"], states["route_cum"]
+    rep = lambda x: x.repeat_interleave(t1, 0)  # noqa: E731
+    s = project(rep(pts), rep(cum), path.reshape(-1, 4))[0].view(e, t1)
+    furthest = s.amax(1)
+    start = states["subgoal_index"]
+    end = advance(start, furthest, states["subgoal_s"], switch)
+    return (end - start).to(torch.long), furthest
+
+
+def describe_failures(results, states, passed, furthest, count: int) -> list[dict]:
+    """The first ``count`` failed episodes: outcome, steps, sub-goals passed, furthest route
+    projection and route length [m], final distance to the goal [m], blocks on the route."""
+    import torch
+
+    from truckrl.sim.network.config import BLOCK_NAMES
+
+    failed = (~results["success"]).nonzero().squeeze(-1)[:count]
+    rows = []
+    for i in failed.tolist():  # a report's rows, after the rollout
+        outcome = next(
+            (k for k in ("collision", "jackknife", "truncated") if bool(results[k][i])), "none"
+        )
+        first = states["start_options"].shape[1] - 1 - int(results["junctions"][i])
+        types = states["block_type"][i, 2 * first :].tolist()
+        rows.append(
+            {
+                "episode": i,
+                "outcome": "timeout" if outcome == "truncated" else outcome,
+                "steps": int(results["length"][i]),
+                "subgoals_passed": int(passed[i]),
+                "furthest_m": round(float(furthest[i] - states["route_s"][i]), 1),
+                "route_length_m": round(float(results["route_length"][i]), 1),
+                "final_pos_error_m": round(float(results["pos_error"][i]), 1),
+                "vehicles": int(results["vehicles"][i]),
+                "blocks": [BLOCK_NAMES[t] for t in types if t >= 0],
+                "turns_deg": [
+                    round(float(torch.rad2deg(states["junction_turn"][i, k])))
+                    for k in range(2 * first + 1, states["junction_turn"].shape[1], 2)
+                ],
+            }
+        )
+    return rows
+
+
+def one_run(actor, env_cfg, cfg: ChainConfig) -> dict:
+    """Evaluate on the held-out scenes of one env: the summary, the failures' sub-goals and
+    rows, and the category rows."""
+    import torch
+
+    from truckrl.evaluation.categories import summarize_by_category, task_bins
+    from truckrl.evaluation.rollout import evaluate_policy, summarize
+    from truckrl.planning.scenes import held_out_states
+    from truckrl.tasks.bins import range_bins
+
+    results, _, errors = evaluate_policy(
+        actor, env_cfg, cfg.difficulty, cfg.episodes, cfg.seed, record_paths=True
+    )
+    states = held_out_states(env_cfg, cfg.episodes, cfg.seed, difficulty=cfg.difficulty)
+    passed, furthest = subgoals_passed(states, results["path"], cfg.switch)
+    j = int(results["junctions"].max())
+    failed = ~results["success"]
+    passed_hist = {str(k): int((failed & (passed == k)).sum()) for k in range(j + 1)}
+    bins = task_bins(env_cfg.task.name, results) or {}
+    length = results["route_length"].to(torch.float64)
+    bins[ROUTE_LENGTH_DIM] = range_bins(length, ROUTE_LENGTH_EDGES, torch.ones_like(failed))
+    return {
+        "junctions": j,
+        "traffic_share": env_cfg.task.curriculum.traffic[0],
+        "subgoals": env_cfg.task.subgoal.junctions,
+        **summarize(results, errors),
+        "feasible_rate": results["feasible"].mean().item(),
+        "failed_by_subgoals_passed": passed_hist,
+        "categories": summarize_by_category(results, bins, errors),
+        "failures": describe_failures(results, states, passed, furthest, cfg.failures),
+    }
+
+
+def run(cfg: ChainConfig) -> dict:
+    import math
+    import time
+
+    import torch
+
+    from truckrl.cli import check_writable, provenance
+    from truckrl.evaluation.categories import format_category_table
+    from truckrl.rl.policy import load_policy
+    from truckrl.tasks.network.cells.task import CELLS_TASK
+
+    torch.set_num_threads(cfg.threads)
+    out = Path(cfg.out) if cfg.out else None
+    if out is not None:
+        check_writable(out, "out")
+    policy = load_policy(cfg.checkpoint)
+    check_policy(policy, cfg.checkpoint)
+    plan = [(j, share, True) for j in cfg.junctions for share in cfg.traffic]
+    if cfg.control:
+        plan += [(j, cfg.traffic[0], False) for j in cfg.junctions]
+    runs = []
+    for j, share, subgoals in plan:
+        env_cfg = chain_env(policy.env_config, cfg, j, share, subgoals)
+        t0 = time.perf_counter()
+        r = one_run(policy.actor, env_cfg, cfg)
+        r["wall_s"] = round(time.perf_counter() - t0, 1)
+        runs.append(r)
+        head = f"{j} junction(s), traffic share {share:g}, sub-goals {'on' if subgoals else 'off'}"
+        print(
+            f"{head}: success {100 * r['success_rate']:.1f} %, collision "
+            f"{100 * r['collision_rate']:.1f} %, jack-knife {100 * r['jackknife_rate']:.1f} %, "
+            f"timeout {100 * r['timeout_rate']:.1f} % of {r['episodes']} ({r['wall_s']} s); "
+            f"failures by sub-goals passed {r['failed_by_subgoals_passed']}"
+        )
+        print(format_category_table(r["categories"]), flush=True)
+    tol = policy.env_config.tolerance
+    scale = 2.0**-cfg.difficulty
+    data = {
+        "provenance": provenance("cpu"),
+        "checkpoint": cfg.checkpoint,
+        "policy_task": policy.env_config.task.name,
+        "task": CELLS_TASK,
+        "num_beams": policy.env_config.lidar.num_beams,
+        "control": f"{policy.env_config.control.longitudinal}/{policy.env_config.control.lateral}",
+        "difficulty": cfg.difficulty,
+        "tolerance_position_m": tol.position * scale,
+        "tolerance_heading_deg": math.degrees(tol.heading) * scale,
+        "seed": cfg.seed,
+        "episodes": cfg.episodes,
+        "max_steps": cfg.max_steps,
+        "past_exit_m": cfg.past_exit,
+        "switch_m": cfg.switch,
+        "runs": runs,
+    }
+    if out is not None:
+        out.write_text(json.dumps(data, indent=1) + "\n")
+        print(f"wrote {out}")
+    return data
+
+
+def main(argv: list[str] | None = None) -> int:
+    from truckrl.cli import key_value_config, run_or_fail
+
+    cfg = key_value_config(ChainConfig, sys.argv[1:] if argv is None else argv, PROG, ABOUT)
+    return run_or_fail(run, cfg)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
