@@ -64,6 +64,13 @@ class ChainConfig:
     switch: float = param(
         5.0, lo=0.0, hi=1000.0, unit="m", doc="env.task.subgoal.switch of every run"
     )
+    horizon: float = param(
+        0.0, lo=0.0, hi=1000.0, unit="m", doc="env.task.subgoal.horizon of every run (0: off)"
+    )
+    road_width: tuple[float, float] | None = param(
+        None, lo=2.0, hi=40.0, unit="m",
+        doc="env.task.network.road_width of every run; null: the network task's",
+    )  # fmt: skip
     control: bool = param(False, doc="also run each route length without sub-goals")
     max_steps: int = param(
         1000, lo=1, hi=1_000_000, unit="steps", doc="episode limit (experiment=network's)"
@@ -89,8 +96,12 @@ def chain_env(base, cfg: ChainConfig, junctions: int, share: float, subgoals: bo
 
     task = CellsTaskConfig(
         curriculum=CurriculumConfig(difficulty=(0.0,), junctions=(junctions,), traffic=(share,)),
-        subgoal=SubgoalConfig(past_exit=cfg.past_exit, switch=cfg.switch, junctions=subgoals),
+        subgoal=SubgoalConfig(
+            past_exit=cfg.past_exit, switch=cfg.switch, junctions=subgoals, horizon=cfg.horizon
+        ),
     )
+    if cfg.road_width is not None:
+        task = replace(task, network=replace(task.network, road_width=cfg.road_width))
     return replace(base, max_steps=cfg.max_steps, compile=False, task=task)
 
 
@@ -127,6 +138,43 @@ def subgoals_passed(states, path, switch: float):
     return (end - start).to(torch.long), furthest
 
 
+def collision_sites(states, pose):
+    """Where trucks at their final ``pose [E, 4]`` touch the chain's curbs: ``(what [E], body
+    [E], block [E])``: ``what`` 1 where a curb is touched (0: none, so a vehicle where the
+    episode ended in a collision), ``body`` 0 tractor / 1 trailer / 2 both, ``block`` the
+    block index of the first touched curb (-1: none); all long."""
+    import torch
+
+    from truckrl.sim.collision import touching
+
+    params = {k: states["params", k] for k in states["params"].keys()}
+    tractor, trailer = touching(pose, params, states["net_segments"], states["net_mask"])
+    hit = tractor | trailer
+    first = hit.to(torch.uint8).argmax(-1, keepdim=True)
+    block = torch.where(hit.any(-1), states["segment_block"].gather(1, first).squeeze(1), -1)
+    front, back = tractor.any(-1), trailer.any(-1)
+    body = back.long() + (front & back).long()
+    return hit.any(-1).long(), body, block.long()
+
+
+def site_counts(results, states, pose) -> dict[str, int]:
+    """Collisions ``{site: count}``: ``vehicle``, or ``<body> on <link|junction> <type>``."""
+    from truckrl.sim.network.config import BLOCK_NAMES
+
+    what, body, block = collision_sites(states, pose)
+    bodies = ("tractor", "trailer", "tractor and trailer")
+    out: dict[str, int] = {}
+    for i in results["collision"].nonzero().squeeze(-1).tolist():  # a report's rows
+        if not what[i]:
+            key = "vehicle"
+        else:
+            k = int(block[i])
+            role = "link" if k % 2 == 0 else "junction"
+            key = f"{bodies[int(body[i])]} on {role} {BLOCK_NAMES[int(states['block_type'][i, k])]}"
+        out[key] = out.get(key, 0) + 1
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+
 def describe_failures(results, states, passed, furthest, count: int) -> list[dict]:
     """The first ``count`` failed episodes: outcome, steps, sub-goals passed, furthest route
     projection and route length [m], final distance to the goal [m], blocks on the route."""
@@ -135,6 +183,7 @@ def describe_failures(results, states, passed, furthest, count: int) -> list[dic
     from truckrl.sim.network.config import BLOCK_NAMES
 
     failed = (~results["success"]).nonzero().squeeze(-1)[:count]
+    what, body, block = collision_sites(states, results["path"][:, -1])
     rows = []
     for i in failed.tolist():  # a report's rows, after the rollout
         outcome = next(
@@ -152,6 +201,10 @@ def describe_failures(results, states, passed, furthest, count: int) -> list[dic
                 "route_length_m": round(float(results["route_length"][i]), 1),
                 "final_pos_error_m": round(float(results["pos_error"][i]), 1),
                 "vehicles": int(results["vehicles"][i]),
+                "curb_touched_by": (
+                    ("tractor", "trailer", "both")[int(body[i])] if what[i] else None
+                ),
+                "curb_block": int(block[i]) - 2 * first if what[i] else None,
                 "blocks": [BLOCK_NAMES[t] for t in types if t >= 0],
                 "turns_deg": [
                     round(float(torch.rad2deg(states["junction_turn"][i, k])))
@@ -190,6 +243,7 @@ def one_run(actor, env_cfg, cfg: ChainConfig) -> dict:
         **summarize(results, errors),
         "feasible_rate": results["feasible"].mean().item(),
         "failed_by_subgoals_passed": passed_hist,
+        "collisions_by_site": site_counts(results, states, results["path"][:, -1]),
         "categories": summarize_by_category(results, bins, errors),
         "failures": describe_failures(results, states, passed, furthest, cfg.failures),
     }
@@ -227,7 +281,8 @@ def run(cfg: ChainConfig) -> dict:
             f"{head}: success {100 * r['success_rate']:.1f} %, collision "
             f"{100 * r['collision_rate']:.1f} %, jack-knife {100 * r['jackknife_rate']:.1f} %, "
             f"timeout {100 * r['timeout_rate']:.1f} % of {r['episodes']} ({r['wall_s']} s); "
-            f"failures by sub-goals passed {r['failed_by_subgoals_passed']}"
+            f"failures by sub-goals passed {r['failed_by_subgoals_passed']}; collisions "
+            f"{r['collisions_by_site']}"
         )
         print(format_category_table(r["categories"]), flush=True)
     tol = policy.env_config.tolerance
@@ -247,6 +302,8 @@ def run(cfg: ChainConfig) -> dict:
         "max_steps": cfg.max_steps,
         "past_exit_m": cfg.past_exit,
         "switch_m": cfg.switch,
+        "horizon_m": cfg.horizon,
+        "road_width_m": list(chain_env(policy.env_config, cfg, 1, 1.0).task.network.road_width),
         "runs": runs,
     }
     if out is not None:

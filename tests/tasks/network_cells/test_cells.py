@@ -218,3 +218,17 @@ def test_bad_subgoal_config_is_a_one_line_error(subgoal, needle):
     with pytest.raises(ConfigError) as e:
         config(**subgoal)
     assert needle in str(e.value) and "\n" not in str(e.value)
+
+
+def test_horizon_shows_the_route_pose_ahead_until_the_subgoal_is_near():
+    """horizon = 30 m on the hand-built chain: at 10 m the sub-goal (70 m) is shown as the
+    route pose at 40 m, (40, 0) heading 0; at 50 m as itself, (70, 0); at 90 m (the next
+    sub-goal, 150 m, current) as the pose at 120 m, (100, 20) heading 90 deg."""
+    task = make_task(config(horizon=30.0))
+    st = hand_state(task, [(10.0, 0.0, 0.0, 0.0), (50.0, 0.0, 0.0, 0.0), (90.0, 0.0, 0.0, 0.0)])
+    assert st["subgoal_index"].tolist() == [0, 0, 1]
+    obs = task.observe(dict(st.items()) | {"params": dict(st["params"].items())}, torch.zeros(3))
+    want = torch.tensor(
+        [[30.0 / 50, 0.0, 0.0, 1.0], [20.0 / 50, 0.0, 0.0, 1.0], [10.0 / 50, 20.0 / 50, 1.0, 0.0]]
+    )
+    torch.testing.assert_close(obs["observation"][:, :4], want, atol=1e-5, rtol=0)

@@ -40,6 +40,12 @@ rear axle is 15 m past the exit (the truck mostly out of the junction) without m
 align to a pose it does not need to reach. ``subgoal.junctions = false`` shows the final goal
 from the start (the control: the intersection policy without sub-goals).
 
+Horizon (a diagnostic, off by default). The intersection task's goals lie 25-70 m from its
+starts; a junction exit can lie 150 m ahead. With ``subgoal.horizon = h > 0`` a current
+sub-goal more than ``h`` metres of arc length ahead of the truck's projection is shown as the
+route pose ``h`` ahead of it (on the route, heading along it), the sub-goal itself once it is
+within ``h``: the same cells, with goals at the distances the policy was trained on.
+
 State keys (:data:`SUBGOAL_KEYS`): ``subgoals [N, S, 3]`` (x, y [m], heading [rad]; ``S = J +
 1``), ``subgoal_s [N, S]`` (their arc lengths along the route [m], non-decreasing) and
 ``subgoal_index [N]`` (long, the current one). A state built by hand without the network's
@@ -89,6 +95,11 @@ class SubgoalConfig:
     junctions: bool = param(
         True, doc="sub-goals at the junction exits (false: the final goal from the start)"
     )
+    horizon: float = param(
+        0.0, lo=0.0, hi=1000.0, unit="m",
+        doc="0: off; else a sub-goal farther along the route is shown as the route pose this "
+        "far ahead of the truck's projection",
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         validate(self, "env.task.subgoal")
@@ -230,10 +241,25 @@ class CellsTask(NetworkTask):
         )
         return new
 
+    def observed_goal(self, s: Mapping[str, Any]) -> Tensor:
+        """The goal pose ``[N, 3]`` the observation shows: the current sub-goal, or with
+        ``subgoal.horizon`` ``h > 0`` the route pose ``h`` ahead of the truck's projection
+        where the sub-goal lies farther along the route (module doc)."""
+        goal = current_subgoal(s)
+        h = self.cfg.task.subgoal.horizon
+        if h <= 0.0:  # a config value: no tensor is read
+            return goal
+        n = goal.shape[0]
+        sub_s = s["subgoal_s"].gather(1, s["subgoal_index"].view(n, 1)).squeeze(1)
+        ahead = s["route_s"] + h
+        xy, heading = point_at(s["route_points"], s["route_cum"], ahead.unsqueeze(-1))
+        carrot = torch.cat((xy[:, 0], heading), -1)
+        return torch.where((sub_s > ahead).unsqueeze(-1), carrot, goal)
+
     def observe(self, s: dict[str, Any], difficulty: Tensor) -> dict[str, Tensor]:
-        """The shared observation with the current sub-goal as the goal (errors, flags and the
-        rest of the state stay the final goal's)."""
-        return super().observe({**s, "goal": current_subgoal(s)}, difficulty)
+        """The shared observation with :meth:`observed_goal` as the goal (errors, flags and
+        the rest of the state stay the final goal's)."""
+        return super().observe({**s, "goal": self.observed_goal(s)}, difficulty)
 
 
 TASK = CellsTask
