@@ -23,6 +23,7 @@ task's bins and route length [m] bins, and writes everything with its provenance
 from __future__ import annotations
 
 import json
+import shlex
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -37,6 +38,8 @@ ABOUT = "An intersection policy driven through networks by junction-exit sub-goa
 ROUTE_LENGTH_EDGES: tuple[float, ...] = (0.0, 150.0, 250.0, 350.0, 1000.0)
 #: Dimension name of the route length bins.
 ROUTE_LENGTH_DIM = "route length [m]"
+#: Dimension name of the runs' bins in the record's category rows.
+RUN_DIM = "run"
 
 
 @dataclass
@@ -215,9 +218,45 @@ def describe_failures(results, states, passed, furthest, count: int) -> list[dic
     return rows
 
 
-def one_run(actor, env_cfg, cfg: ChainConfig) -> dict:
-    """Evaluate on the held-out scenes of one env: the summary, the failures' sub-goals and
-    rows, and the category rows."""
+def run_name(junctions: int, share: float, subgoals: bool) -> str:
+    """A run's bin name: ``"2 junctions, traffic"``, ``"1 junction, no traffic"``, ..."""
+    traffic = {0.0: "no traffic", 1.0: "traffic"}.get(share, f"{share:g} of the traffic")
+    plural = "s" if junctions != 1 else ""
+    return f"{junctions} junction{plural}, {traffic}" + ("" if subgoals else ", no sub-goals")
+
+
+def pooled_tables(runs: list[tuple[str, bool, dict]], errors) -> tuple[dict, list[dict]]:
+    """The record's headline: ``(summary, category rows)`` of ``runs`` (``(name, headline,
+    results)`` each): one bin per run (dimension :data:`RUN_DIM`), then the network task's
+    bins and the route length bins over the ``headline`` runs pooled (every route length at
+    the first traffic share, with sub-goals); the summary is theirs."""
+    import torch
+
+    from truckrl.evaluation.categories import summarize_by_category
+    from truckrl.evaluation.rollout import summarize
+    from truckrl.tasks.bins import range_bins
+    from truckrl.tasks.network.bins import JUNCTION_DIM, network_bins
+
+    keys = [k for k in runs[0][2] if k not in ("path", "motion")]
+    pooled = {k: torch.cat([r[k] for _, _, r in runs]) for k in keys}
+    counts = [r["success"].shape[0] for _, _, r in runs]
+    which = torch.repeat_interleave(torch.arange(len(runs)), torch.tensor(counts))
+    head = torch.tensor([h for _, h, _ in runs])[which]
+    bins: dict[str, dict] = {RUN_DIM: {name: which == i for i, (name, _, _) in enumerate(runs)}}
+    more = network_bins(pooled)
+    del more[JUNCTION_DIM]  # the runs are the route lengths
+    length = pooled["route_length"].to(torch.float64)
+    more[ROUTE_LENGTH_DIM] = range_bins(length, ROUTE_LENGTH_EDGES, head)
+    for dim, named in more.items():
+        bins[f"{dim}, pooled"] = {b: m & head for b, m in named.items()}
+    summary = summarize({k: v[head] for k, v in pooled.items()}, errors)
+    return summary, summarize_by_category(pooled, bins, errors)
+
+
+def one_run(actor, env_cfg, cfg: ChainConfig) -> tuple[dict, dict, tuple]:
+    """Evaluate on the held-out scenes of one env: its record (the summary, the failures'
+    sub-goals, sites and rows, the category rows), the per-episode results and the task's
+    error quantities."""
     import torch
 
     from truckrl.evaluation.categories import summarize_by_category, task_bins
@@ -236,7 +275,7 @@ def one_run(actor, env_cfg, cfg: ChainConfig) -> dict:
     bins = task_bins(env_cfg.task.name, results) or {}
     length = results["route_length"].to(torch.float64)
     bins[ROUTE_LENGTH_DIM] = range_bins(length, ROUTE_LENGTH_EDGES, torch.ones_like(failed))
-    return {
+    row = {
         "junctions": j,
         "traffic_share": env_cfg.task.curriculum.traffic[0],
         "subgoals": env_cfg.task.subgoal.junctions,
@@ -247,6 +286,7 @@ def one_run(actor, env_cfg, cfg: ChainConfig) -> dict:
         "categories": summarize_by_category(results, bins, errors),
         "failures": describe_failures(results, states, passed, furthest, cfg.failures),
     }
+    return row, results, errors
 
 
 def run(cfg: ChainConfig) -> dict:
@@ -269,26 +309,32 @@ def run(cfg: ChainConfig) -> dict:
     plan = [(j, share, True) for j in cfg.junctions for share in cfg.traffic]
     if cfg.control:
         plan += [(j, cfg.traffic[0], False) for j in cfg.junctions]
-    runs = []
+    runs, per_episode = [], []
     for j, share, subgoals in plan:
         env_cfg = chain_env(policy.env_config, cfg, j, share, subgoals)
         t0 = time.perf_counter()
-        r = one_run(policy.actor, env_cfg, cfg)
+        r, results, errors = one_run(policy.actor, env_cfg, cfg)
         r["wall_s"] = round(time.perf_counter() - t0, 1)
+        r["name"] = run_name(j, share, subgoals)
         runs.append(r)
-        head = f"{j} junction(s), traffic share {share:g}, sub-goals {'on' if subgoals else 'off'}"
+        per_episode.append((r["name"], share == cfg.traffic[0] and subgoals, results))
         print(
-            f"{head}: success {100 * r['success_rate']:.1f} %, collision "
+            f"{r['name']}: success {100 * r['success_rate']:.1f} %, collision "
             f"{100 * r['collision_rate']:.1f} %, jack-knife {100 * r['jackknife_rate']:.1f} %, "
             f"timeout {100 * r['timeout_rate']:.1f} % of {r['episodes']} ({r['wall_s']} s); "
             f"failures by sub-goals passed {r['failed_by_subgoals_passed']}; collisions "
             f"{r['collisions_by_site']}"
         )
         print(format_category_table(r["categories"]), flush=True)
+    summary, categories = pooled_tables(per_episode, errors)
+    print(format_category_table(categories))
     tol = policy.env_config.tolerance
     scale = 2.0**-cfg.difficulty
+    prov = provenance("cpu")
+    if Path(sys.argv[0]).parts[-2:] == ("tools", "chain.py"):  # python -m truckrl.tools.chain
+        prov["command"] = shlex.join(["python", "-m", "truckrl.tools.chain", *sys.argv[1:]])
     data = {
-        "provenance": provenance("cpu"),
+        "provenance": prov,
         "checkpoint": cfg.checkpoint,
         "policy_task": policy.env_config.task.name,
         "task": CELLS_TASK,
@@ -298,12 +344,15 @@ def run(cfg: ChainConfig) -> dict:
         "tolerance_position_m": tol.position * scale,
         "tolerance_heading_deg": math.degrees(tol.heading) * scale,
         "seed": cfg.seed,
-        "episodes": cfg.episodes,
+        "episodes_per_run": cfg.episodes,
         "max_steps": cfg.max_steps,
         "past_exit_m": cfg.past_exit,
         "switch_m": cfg.switch,
         "horizon_m": cfg.horizon,
         "road_width_m": list(chain_env(policy.env_config, cfg, 1, 1.0).task.network.road_width),
+        "headline": f"every route length, {run_name(1, cfg.traffic[0], True).split(', ')[1]}",
+        **summary,
+        "categories": categories,
         "runs": runs,
     }
     if out is not None:
