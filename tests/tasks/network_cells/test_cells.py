@@ -16,7 +16,7 @@ from truckrl.env import TruckEnv
 from truckrl.sim.vehicle import truck_extents
 from truckrl.tasks import EnvConfig, make_task
 from truckrl.tasks.network.cells.task import CELLS_TASK
-from truckrl.tools.chain import subgoals_passed
+from truckrl.tools.chain import collision_sites, pooled_tables, subgoals_passed
 
 HALF_PI = math.pi / 2
 #: The hand-built chain: an L-shaped route (0, 0) -> (100, 0) -> (100, 100), arc length 200 m;
@@ -232,3 +232,48 @@ def test_horizon_shows_the_route_pose_ahead_until_the_subgoal_is_near():
         [[30.0 / 50, 0.0, 0.0, 1.0], [20.0 / 50, 0.0, 0.0, 1.0], [10.0 / 50, 20.0 / 50, 1.0, 0.0]]
     )
     torch.testing.assert_close(obs["observation"][:, :4], want, atol=1e-5, rtol=0)
+
+
+def test_collision_sites_name_the_curb_block_and_body():
+    """The curb y = 12 (slot 2, block 1 here): a truck straddling it touches it with both
+    bodies; at y = 9 with the trailer swung 0.3 rad to the left (its rear ~12 m behind the
+    axle reaches y ~ 12.5) with the trailer; at y = 10 nosing 0.25 rad to the left (the bumper
+    ~5 m ahead reaches y ~ 11.2 + 1.2) with the tractor; one on the route touches none."""
+    task = make_task(config())
+    poses = [(30.0, 11.5, 0.0, 0.0), (30.0, 9.0, 0.0, -0.3), (30.0, 10.0, 0.25, 0.0)]
+    st = hand_state(task, [*poses, (30.0, 0.0, 0.0, 0.0)])
+    st["segment_block"] = torch.tensor([[0, 2, 1]] * 4)
+    what, body, block = collision_sites(st, st["pose"])
+    assert what.tolist() == [1, 1, 1, 0]
+    assert body[:3].tolist() == [2, 1, 0]
+    assert block.tolist() == [1, 1, 1, -1]
+
+
+def test_pooled_record_keeps_runs_apart_and_summarises_the_headline_runs():
+    """Two runs of 4 episodes: one bin each; the summary is the headline run's alone (3 of 4
+    successes, not 3 of 8); pooled bins count the headline run's episodes only."""
+    from truckrl.sim.network.config import BLOCK_NAMES
+    from truckrl.tasks.goals import POSE_ERRORS
+
+    def results(success):
+        n = len(success)
+        out = {"success": torch.tensor(success)}
+        for k in ("collision", "jackknife"):
+            out[k] = torch.zeros(n, dtype=torch.bool)
+        out["truncated"] = ~out["success"]
+        out |= {f"has_{b}": torch.ones(n) for b in BLOCK_NAMES}
+        out |= {k: torch.zeros(n) for k in ("turns_straight", "turns_left", "turns_right")}
+        out |= {q.key: torch.ones(n) for q in POSE_ERRORS}
+        out |= {"junctions": torch.ones(n), "traffic_density": torch.zeros(n)}
+        return out | {"length": torch.ones(n), "route_length": torch.full((n,), 120.0)}
+
+    runs = [
+        ("a", True, results([True, True, True, False])),
+        ("b", False, results([False] * 4)),
+    ]
+    summary, rows = pooled_tables(runs, POSE_ERRORS)
+    assert summary["episodes"] == 4 and summary["success_rate"] == pytest.approx(0.75)
+    by = {(r["dimension"], r["bin"]): r for r in rows}
+    assert by[("run", "a")]["count"] == 4 and by[("run", "b")]["success_rate"] == 0.0
+    assert by[("block types on the route, pooled", "straight")]["count"] == 4
+    assert by[("route length [m], pooled", "0-150")]["success_rate"] == pytest.approx(0.75)
