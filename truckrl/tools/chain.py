@@ -74,6 +74,9 @@ class ChainConfig:
         None, lo=2.0, hi=40.0, unit="m",
         doc="env.task.network.road_width of every run; null: the network task's",
     )  # fmt: skip
+    block_types: tuple[str, ...] | None = param(
+        None, doc="env.task.network.block_types of every run; null: the network task's"
+    )
     control: bool = param(False, doc="also run each route length without sub-goals")
     max_steps: int = param(
         1000, lo=1, hi=1_000_000, unit="steps", doc="episode limit (experiment=network's)"
@@ -105,6 +108,8 @@ def chain_env(base, cfg: ChainConfig, junctions: int, share: float, subgoals: bo
     )
     if cfg.road_width is not None:
         task = replace(task, network=replace(task.network, road_width=cfg.road_width))
+    if cfg.block_types is not None:
+        task = replace(task, network=replace(task.network, block_types=cfg.block_types))
     return replace(base, max_steps=cfg.max_steps, compile=False, task=task)
 
 
@@ -327,6 +332,7 @@ def run(cfg: ChainConfig) -> dict:
         )
         print(format_category_table(r["categories"]), flush=True)
     summary, categories = pooled_tables(per_episode, errors)
+    network = chain_env(policy.env_config, cfg, 1, 1.0).task.network
     print(format_category_table(categories))
     tol = policy.env_config.tolerance
     scale = 2.0**-cfg.difficulty
@@ -349,7 +355,8 @@ def run(cfg: ChainConfig) -> dict:
         "past_exit_m": cfg.past_exit,
         "switch_m": cfg.switch,
         "horizon_m": cfg.horizon,
-        "road_width_m": list(chain_env(policy.env_config, cfg, 1, 1.0).task.network.road_width),
+        "road_width_m": list(network.road_width),
+        "block_types": list(network.block_types),
         "headline": f"every route length, {run_name(1, cfg.traffic[0], True).split(', ')[1]}",
         **summary,
         "categories": categories,
