@@ -397,123 +397,188 @@ def _idm(cfg: TrafficConfig, v: Tensor, v0: Tensor, gap: Tensor, dv: Tensor) -> 
     return a * (free - (want / gap.clamp_min(1e-3)) ** 2)
 
 
+def _points_t(tr: Traffic, lane: Tensor, s: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """:func:`lane_points` in the step's vehicle-major layout: ``lane``, ``s`` ``[M, n]`` give
+    ``x``, ``y`` [m] and the heading [rad], each ``[M, n]`` (the same operations, so the same
+    values)."""
+    n, P, Q = tr.cum.shape
+    rows = torch.arange(n, device=lane.device) * P + lane  # [M, n] flat lane rows
+    cum = tr.cum.reshape(n * P, Q)[rows].contiguous()  # [M, n, Q]
+    idx = torch.searchsorted(cum, s.unsqueeze(-1).contiguous(), right=True).squeeze(-1) - 1
+    idx = torch.minimum(idx.clamp_min(0), tr.pieces.reshape(-1)[rows])
+    flat = rows * Q + idx
+    pts, arc = tr.lanes.reshape(-1, 2), tr.cum.reshape(-1)
+    p0, p1, c0, c1 = pts[flat], pts[flat + 1], arc[flat], arc[flat + 1]
+    d = p1 - p0
+    t = ((s - c0) / (c1 - c0).clamp_min(1e-9)).unsqueeze(-1)
+    xy = p0 + t * d
+    return xy[..., 0], xy[..., 1], torch.atan2(d[..., 1], d[..., 0])
+
+
+def _computed_once(*fields: Tensor) -> tuple[Tensor, ...]:
+    """The same ``fields`` (float, each ``[F, n]``-shaped alike), computed into memory once,
+    contiguous: a cumulative sum over a dimension of size 1 (exact), which a compiled step runs
+    as a kernel of its own. Without it, inductor inlines the fields' gathers and trigonometry
+    into every pair loop that reads them (``M`` times per vehicle, more with
+    ``realize_opcount_threshold`` raised for the LiDAR, :mod:`truckrl.sim.compiled`), and lays
+    the pair loops out along the fields' own ``[n, M]`` strides, ``M = 8`` innermost."""
+    return tuple(torch.stack(fields, 0).unsqueeze(0).cumsum(0).squeeze(0).unbind(0))
+
+
+def _overlap_t(a: tuple[Tensor, ...], b: tuple[Tensor, ...], margin: float) -> Tensor:
+    """Whether boxes ``a`` (fields ``(cx, cy, cos, sin, half length, half width)``, each
+    ``[A, 1, n]``) overlap boxes ``b`` (each ``[1, B, n]``), both grown by ``margin`` [m]:
+    ``[A, B, n]`` bool. The separating-axis test of :func:`boxes_overlap` on the same 4 axes,
+    written with the boxes' relative rotation ``|cos|``, ``|sin|`` shared by all four (a unit
+    axis projects a box's own half extents exactly)."""
+    ax, ay, ac, as_, al, aw = a
+    bx, by, bc, bs, bl, bw = b
+    al, aw, bl, bw = al + margin, aw + margin, bl + margin, bw + margin
+    dx, dy = bx - ax, by - ay
+    c = (ac * bc + as_ * bs).abs()
+    s = (ac * bs - as_ * bc).abs()
+    return (
+        ((dx * ac + dy * as_).abs() < al + bl * c + bw * s)
+        & ((dy * ac - dx * as_).abs() < aw + bl * s + bw * c)
+        & ((dx * bc + dy * bs).abs() < bl + al * c + aw * s)
+        & ((dy * bc - dx * bs).abs() < bw + al * s + aw * c)
+    )
+
+
 def step_traffic(
     traffic: Traffic, cfg: TrafficConfig, dt: float, ego: Tensor | None = None
 ) -> Traffic:
     """All vehicles one step of ``dt`` [s] on (module doc). ``ego``: ``[n, B, 6]`` boxes the
     vehicles treat as obstacles (:func:`ego_boxes` of the truck), or ``None``. Tensor ops only,
-    no host sync."""
+    no host sync.
+
+    Computed vehicle-major: every ``[n, M]`` field is read as ``[M, n]`` and every pair table
+    is ``[M, M, n]``, the networks innermost, so a compiled step runs its pair loops over
+    contiguous rows of ``n`` (vectorised) rather than over rows of ``M = 8``."""
     tr = traffic
     n, M = tr.s.shape
     dev = tr.s.device
-    act, on = tr.active, tr.present()
-    xy, heading = lane_points(tr, tr.lane, tr.s)
-    box = _boxes(xy, heading, tr.length, tr.width)
-    half = 0.5 * tr.length
-    eye = torch.eye(M, dtype=torch.bool, device=dev)
-    other = on.unsqueeze(1) & on.unsqueeze(2) & ~eye  # both on the road
+    lane, home, s, v, v0 = tr.lane.T, tr.home.T, tr.s.T, tr.v.T, tr.v0.T  # [M, n]
+    length, width, act, waiting = tr.length.T, tr.width.T, tr.active.T, tr.waiting.T
+    on = act & ~waiting
+    x, y, heading = _points_t(tr, lane, s)
+    my_len = torch.gather(tr.lane_len.T, 0, lane)
+    succ = torch.gather(tr.successor.T, 0, lane)
+    half = 0.5 * length
+    hw = 0.5 * width
+    # what the pair loops read, [M, n] in memory (floats: lane slots and flags are exact)
+    x, y, c, sn, half, hw, width, s_p, v_p, len_p, lane_p, succ_p, on_p = _computed_once(
+        x, y, torch.cos(heading), torch.sin(heading), half, hw, width, s, v, my_len,
+        lane.float(), succ.float(), on.float(),
+    )  # fmt: skip
+    on_p = on_p > 0.5
+    eye = torch.eye(M, dtype=torch.bool, device=dev).unsqueeze(-1)  # [i, j, 1]
+    lower = torch.ones(M, M, dtype=torch.bool, device=dev).tril(-1).unsqueeze(-1)  # j < i
+    other = on_p.unsqueeze(1) & on_p.unsqueeze(0) & ~eye  # [i, j, n] both on the road
     # ---- leaders along the lane: same lane ahead, or on the lane this one continues onto
-    my_len = _take(tr.lane_len, tr.lane)
-    succ = _take(tr.successor, tr.lane)
-    si, sj = tr.s.unsqueeze(2), tr.s.unsqueeze(1)  # [n, i, j]
-    same = tr.lane.unsqueeze(2) == tr.lane.unsqueeze(1)
+    si, sj = s_p.unsqueeze(1), s_p.unsqueeze(0)  # [i, 1, n], [1, j, n]
+    same = lane_p.unsqueeze(1) == lane_p.unsqueeze(0)
     ahead = torch.where(
         same & (sj > si), sj - si,
         torch.where(
-            (succ.unsqueeze(2) == tr.lane.unsqueeze(1)) & (succ.unsqueeze(2) >= 0),
-            my_len.unsqueeze(2) - si + sj, math.inf,
+            (succ_p.unsqueeze(1) == lane_p.unsqueeze(0)) & (succ_p.unsqueeze(1) >= 0),
+            len_p.unsqueeze(1) - si + sj, math.inf,
         ),
     )  # fmt: skip
-    lane_gap = (ahead - half.unsqueeze(2) - half.unsqueeze(1)).masked_fill(~other, math.inf)
+    lane_gap = (ahead - half.unsqueeze(1) - half.unsqueeze(0)).masked_fill(~other, math.inf)
     on_lane = torch.isfinite(ahead)
     # ---- anything else ahead in the corridor: other vehicles' and the ego's boxes
-    obst = box if ego is None else torch.cat((box, ego), 1)  # [n, M + B, 6]
     o_ok = other & ~on_lane & ~same
+    ox, oy, oc, os_, ol, ow = x, y, c, sn, half, hw
+    v_obst = v_p
     if ego is not None:
-        o_ok = torch.cat((o_ok, torch.ones(n, M, ego.shape[1], dtype=torch.bool, device=dev)), 2)
-    c, s = torch.cos(heading).unsqueeze(2), torch.sin(heading).unsqueeze(2)
-    dx, dy = obst[..., 0].unsqueeze(1) - xy[..., :1], obst[..., 1].unsqueeze(1) - xy[..., 1:]
-    fwd, lat = c * dx + s * dy, -s * dx + c * dy
-    oc, os_ = obst[..., 2].unsqueeze(1), obst[..., 3].unsqueeze(1)
-    along = (
-        obst[..., 4].unsqueeze(1) * (c * oc + s * os_).abs()
-        + obst[..., 5].unsqueeze(1) * (-s * oc + c * os_).abs()
-    )
-    across = (
-        obst[..., 4].unsqueeze(1) * (-s * oc + c * os_).abs()
-        + obst[..., 5].unsqueeze(1) * (c * oc + s * os_).abs()
-    )
+        e = ego.permute(2, 1, 0)  # [6, B, n]
+        ox, oy, oc, os_ = (torch.cat((a, b), 0) for a, b in zip((x, y, c, sn), e[:4], strict=True))
+        ol, ow = torch.cat((half, e[4]), 0), torch.cat((hw, e[5]), 0)
+        v_obst = torch.cat((v_p, torch.zeros_like(e[0])), 0)
+        o_ok = torch.cat((o_ok, torch.ones(M, ego.shape[1], n, dtype=torch.bool, device=dev)), 1)
+    ci, si_ = c.unsqueeze(1), sn.unsqueeze(1)
+    oc, os_, ol, ow = oc.unsqueeze(0), os_.unsqueeze(0), ol.unsqueeze(0), ow.unsqueeze(0)
+    dx, dy = ox.unsqueeze(0) - x.unsqueeze(1), oy.unsqueeze(0) - y.unsqueeze(1)
+    fwd, lat = ci * dx + si_ * dy, -si_ * dx + ci * dy
+    cos_rel, sin_rel = ci * oc + si_ * os_, -si_ * oc + ci * os_
+    along = ol * cos_rel.abs() + ow * sin_rel.abs()
+    across = ol * sin_rel.abs() + ow * cos_rel.abs()
     in_corridor = (
         o_ok
         & (fwd > 0.0)
         & (fwd < cfg.look_ahead)
-        & (lat.abs() < 0.5 * tr.width.unsqueeze(2) + across + cfg.corridor_margin)
+        & (lat.abs() < 0.5 * width.unsqueeze(1) + across + cfg.corridor_margin)
     )
-    corridor_gap = (fwd - half.unsqueeze(2) - along).masked_fill(~in_corridor, math.inf)
-    v_obst = torch.cat((tr.v, torch.zeros(n, obst.shape[1] - M, device=dev)), 1)
-    v_along = v_obst.unsqueeze(1) * (c * oc + s * os_)
+    corridor_gap = (fwd - half.unsqueeze(1) - along).masked_fill(~in_corridor, math.inf)
+    v_along = v_obst.unsqueeze(0) * cos_rel
     # ---- junction zones: inside now, and the edge of a zone someone else occupies
-    zd = (xy.unsqueeze(2) - tr.zone_centre.unsqueeze(1)).norm(dim=-1)  # [n, M, Z]
-    reach = tr.zone_radius.unsqueeze(1) + half.unsqueeze(2)
-    zm = tr.zone_mask.unsqueeze(1) & on.unsqueeze(2)
+    zcx, zcy, zr, zmask = _computed_once(
+        tr.zone_centre[..., 0].T, tr.zone_centre[..., 1].T, tr.zone_radius.T, tr.zone_mask.T.float()
+    )  # [Z, n]
+    zcx, zcy, zmask = zcx.unsqueeze(0), zcy.unsqueeze(0), zmask.unsqueeze(0) > 0.5
+    zd = torch.stack((x.unsqueeze(1) - zcx, y.unsqueeze(1) - zcy), -1).norm(dim=-1)  # [M, Z, n]
+    reach = zr.unsqueeze(0) + half.unsqueeze(1)
+    zm = zmask & on_p.unsqueeze(1)
     inside = zm & (zd < reach)
-    held_by = (inside.unsqueeze(1) & ~eye.unsqueeze(-1)).any(2)  # [n, i, Z]: another is in
-    toward = (tr.zone_centre.unsqueeze(1) - xy.unsqueeze(2)) * torch.stack(
-        (torch.cos(heading), torch.sin(heading)), -1
-    ).unsqueeze(2)
-    zone_ahead = zm & ~inside & held_by & (toward.sum(-1) > 0.0) & (zd - reach < cfg.look_ahead)
-    zone_gap = (zd - reach).masked_fill(~zone_ahead, math.inf).amin(-1)
+    held_by = inside.sum(0) > inside.long()  # [i, Z, n]: another vehicle is in
+    toward = (zcx - x.unsqueeze(1)) * c.unsqueeze(1) + (zcy - y.unsqueeze(1)) * sn.unsqueeze(1)
+    zone_ahead = zm & ~inside & held_by & (toward > 0.0) & (zd - reach < cfg.look_ahead)
+    zone_gap = (zd - reach).masked_fill(~zone_ahead, math.inf).amin(1)
     # ---- IDM towards the nearest leader
-    gaps = torch.cat((lane_gap, corridor_gap, zone_gap.unsqueeze(-1)), -1)
+    gaps = torch.cat((lane_gap, corridor_gap, zone_gap.unsqueeze(1)), 1)
     lead_v = torch.cat(
-        (tr.v.unsqueeze(1).expand(n, M, M), v_along, torch.zeros(n, M, 1, device=dev)), -1
+        (v_p.unsqueeze(0).expand(M, M, n), v_along, torch.zeros_like(zone_gap).unsqueeze(1)), 1
     )
-    gap, k = gaps.min(-1)
-    dv = tr.v - torch.gather(lead_v, 2, k.unsqueeze(-1)).squeeze(-1)
-    acc = _idm(cfg, tr.v, tr.v0, gap, torch.where(torch.isfinite(gap), dv, 0.0))
-    v = torch.minimum((tr.v + acc * dt).clamp_min(0.0), tr.v0)
+    gap, k = gaps.min(1)
+    dv = v - torch.gather(lead_v, 1, k.unsqueeze(1)).squeeze(1)
+    acc = _idm(cfg, v, v0, gap, torch.where(torch.isfinite(gap), dv, 0.0))
+    v_new = torch.minimum((v + acc * dt).clamp_min(0.0), v0)
     # ---- move, continue onto the successor lane, or leave and reappear on the home lane
-    s_new = tr.s + v * dt
+    s_new = s + v_new * dt
     past = on & (s_new > my_len)
     leaving = past & (succ < 0)  # off the network: waits, then reappears
-    appear = act & tr.waiting  # tries to reappear at its home lane's start
-    lane_new = torch.where(
-        past & (succ >= 0), succ, torch.where(leaving | appear, tr.home, tr.lane)
-    )
+    appear = act & waiting  # tries to reappear at its home lane's start
+    lane_new = torch.where(past & (succ >= 0), succ, torch.where(leaving | appear, home, lane))
     s_new = torch.where(
         past & (succ >= 0), s_new - my_len, torch.where(leaving | appear, half, s_new)
     )
     there = (on & ~leaving) | appear  # the vehicles on the road after the move
     # reappearing needs the home lane's first length + min_gap clear of other vehicles
-    on_home = (tr.lane.unsqueeze(1) == tr.home.unsqueeze(2)) & on.unsqueeze(1) & ~eye
-    tail = (tr.s - half).unsqueeze(1)  # [n, 1, j] rear of each vehicle along its lane
-    crowded = (on_home & (tail < (tr.length + cfg.min_gap).unsqueeze(2))).any(-1)
-    xy_new, h_new = lane_points(tr, lane_new, s_new)
-    box_new = _boxes(xy_new, h_new, tr.length, tr.width)
+    on_home = (lane_p.unsqueeze(0) == home.float().unsqueeze(1)) & on_p.unsqueeze(0) & ~eye
+    tail = (s_p - half).unsqueeze(0)  # [1, j, n] rear of each vehicle along its lane
+    crowded = (on_home & (tail < (length + cfg.min_gap).unsqueeze(1))).any(1)
+    xn, yn, hn = _points_t(tr, lane_new, s_new)
+    xn, yn, cn, snn = _computed_once(xn, yn, torch.cos(hn), torch.sin(hn))
     # ---- junction yield: enter a zone only when it is empty and no lower slot enters it
-    zd_new = (xy_new.unsqueeze(2) - tr.zone_centre.unsqueeze(1)).norm(dim=-1)
-    enters = tr.zone_mask.unsqueeze(1) & there.unsqueeze(2) & (zd_new < reach) & ~inside
-    lower = torch.ones(M, M, dtype=torch.bool, device=dev).tril(-1)  # [i, j]: j < i
-    rival = (enters.unsqueeze(1) & lower.unsqueeze(-1)).any(2)  # [n, i, Z]
-    wait = (enters & (held_by | rival)).any(-1)
+    zd_new = torch.stack((xn.unsqueeze(1) - zcx, yn.unsqueeze(1) - zcy), -1).norm(dim=-1)
+    enters = zmask & there.unsqueeze(1) & (zd_new < reach) & ~inside  # [M, Z, n]
+    rival = enters.cumsum(0) > enters.long()  # a lower slot enters the same zone
+    wait = (enters & (held_by | rival)).any(1)
     # ---- safety filter (module doc)
     g = cfg.safety_margin
-    hit_now = boxes_overlap(box_new, box, g) & on.unsqueeze(1) & ~eye
-    both = there.unsqueeze(1) & there.unsqueeze(2) & ~eye
-    hit_new = boxes_overlap(box_new, box_new, g) & both
-    blocked = hit_now.any(-1) | wait | (appear & crowded)
+    new_i = tuple(f.unsqueeze(1) for f in (xn, yn, cn, snn, half, hw))
+    hit_now = (
+        _overlap_t(new_i, tuple(f.unsqueeze(0) for f in (x, y, c, sn, half, hw)), g)
+        & on_p.unsqueeze(0)
+        & ~eye
+    )
+    both = there.unsqueeze(1) & there.unsqueeze(0) & ~eye
+    hit_new = _overlap_t(new_i, tuple(f.unsqueeze(0) for f in (xn, yn, cn, snn, half, hw)), g)
+    hit_new = hit_new & both
+    blocked = hit_now.any(1) | wait | (appear & crowded)
     if ego is not None:
-        blocked = blocked | boxes_overlap(box_new, ego, g).any(-1)
+        blocked = blocked | _overlap_t(new_i, tuple(f.unsqueeze(0) for f in e), g).any(1)
     blocked = blocked & there
     # i moves only if, for every j its new box meets, i < j or j is held anyway
-    lose = (hit_new & ~(lower.T.unsqueeze(0) | blocked.unsqueeze(1))).any(-1)
+    lose = (hit_new & ~(lower.transpose(0, 1) | blocked.unsqueeze(0))).any(1)
     hold = ~act | blocked | lose
     return replace(
         tr,
-        lane=torch.where(hold, tr.lane, lane_new),
-        s=torch.where(hold, tr.s, s_new),
-        v=torch.where(hold | leaving | appear, 0.0, v),
-        waiting=torch.where(hold, tr.waiting, leaving),
+        lane=torch.where(hold, lane, lane_new).T,
+        s=torch.where(hold, s, s_new).T,
+        v=torch.where(hold | leaving | appear, 0.0, v_new).T,
+        waiting=torch.where(hold, waiting, leaving).T,
     )
 
 
@@ -525,7 +590,10 @@ def traffic_segments(traffic: Traffic) -> tuple[Tensor, Tensor]:
     seg = rectangle_segments(xy[..., 0], xy[..., 1], heading, half, half, 0.5 * traffic.width)
     n, M = traffic.s.shape
     mask = traffic.present().repeat_interleave(4, 1)
-    return seg.reshape(n, 4 * M, 4) * mask.unsqueeze(-1), mask
+    # computed into memory once (_computed_once): the LiDAR and collision loops read every
+    # segment once per beam or truck box, and would recompute its lane point and trigonometry
+    (seg,) = _computed_once(seg.reshape(n, 4 * M, 4) * mask.unsqueeze(-1))
+    return seg, mask
 
 
 def with_traffic(
