@@ -227,6 +227,10 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
             self._state.get(key).index_put_((idx,), value)
         self._scene.update(self._state["segments"], self._state["mask"], idx)
         if obs is None:
+            # fresh storage: rows taken from the episode pool are slices whose storage offsets
+            # change from reset to reset, and the compiled observation of them guards on those
+            # offsets (it would compile again for each)
+            fresh = {k: v.clone() for k, v in fresh.items()}
             return self._observe_rows(self._flat_rows(fresh), difficulty)
         return {**obs, "difficulty": difficulty[:, None]}
 
