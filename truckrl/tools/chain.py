@@ -165,6 +165,55 @@ def collision_sites(states, pose):
     return hit.any(-1).long(), body, block.long()
 
 
+def route_pose(states, pose):
+    """Trucks at ``pose [E, 4]`` against their route: ``(along [E], left [E], heading [E])``,
+    the arc length of their projection past the start's [m], their signed distance from the
+    route (+ left of it) [m] and their heading less the route's there [deg, (-180, 180]]."""
+    import math
+
+    import torch
+
+    from truckrl.tasks.network.scene import point_at
+    from truckrl.tasks.network.task import project
+
+    pts, cum = states["route_points"], states["route_cum"]
+    s = project(pts, cum, pose)[0]
+    xy, heading = point_at(pts, cum, s.unsqueeze(-1))
+    d, h = pose[:, :2] - xy[:, 0], heading[:, 0]
+    left = -d[:, 0] * torch.sin(h) + d[:, 1] * torch.cos(h)
+    error = torch.remainder(pose[:, 2] - h + math.pi, 2 * math.pi) - math.pi
+    return s - states["route_s"], left, torch.rad2deg(error)
+
+
+def curb_collisions(results, states, pose) -> dict[str, dict]:
+    """The curb collisions on links and in junctions: ``{role: {count, left_of_route,
+    along_m_p10/p50/p90, steps_p50, heading_error_deg_p10/p50/p90}}`` (the truck's final pose
+    against the route, :func:`route_pose`)."""
+    import torch
+
+    what, _, block = collision_sites(states, pose)
+    along, left, error = route_pose(states, pose)
+    hit = results["collision"] & (what > 0)
+    out = {}
+    for role, parity in (("link", 0), ("junction", 1)):
+        m = hit & (block % 2 == parity)
+        if not bool(m.any()):
+            continue
+        q = torch.tensor([0.1, 0.5, 0.9], dtype=torch.float64)
+        a, e = along[m].double().quantile(q), error[m].double().quantile(q)
+        out[role] = {
+            "count": int(m.sum()),
+            "left_of_route": int((left[m] > 0).sum()),
+            **{f"along_m_p{p}": round(float(v), 1) for p, v in zip((10, 50, 90), a, strict=True)},
+            "steps_p50": float(results["length"][m].double().median()),
+            **{
+                f"heading_error_deg_p{p}": round(float(v), 1)
+                for p, v in zip((10, 50, 90), e, strict=True)
+            },
+        }
+    return out
+
+
 def site_counts(results, states, pose) -> dict[str, int]:
     """Collisions ``{site: count}``: ``vehicle``, or ``<body> on <link|junction> <type>``."""
     from truckrl.sim.network.config import BLOCK_NAMES
@@ -192,6 +241,7 @@ def describe_failures(results, states, passed, furthest, count: int) -> list[dic
 
     failed = (~results["success"]).nonzero().squeeze(-1)[:count]
     what, body, block = collision_sites(states, results["path"][:, -1])
+    _, left, error = route_pose(states, results["path"][:, -1])
     rows = []
     for i in failed.tolist():  # a report's rows, after the rollout
         outcome = next(
@@ -208,6 +258,8 @@ def describe_failures(results, states, passed, furthest, count: int) -> list[dic
                 "furthest_m": round(float(furthest[i] - states["route_s"][i]), 1),
                 "route_length_m": round(float(results["route_length"][i]), 1),
                 "final_pos_error_m": round(float(results["pos_error"][i]), 1),
+                "final_left_of_route_m": round(float(left[i]), 2),
+                "final_heading_error_deg": round(float(error[i]), 1),
                 "vehicles": int(results["vehicles"][i]),
                 "curb_touched_by": (
                     ("tractor", "trailer", "both")[int(body[i])] if what[i] else None
@@ -288,6 +340,7 @@ def one_run(actor, env_cfg, cfg: ChainConfig) -> tuple[dict, dict, tuple]:
         "feasible_rate": results["feasible"].mean().item(),
         "failed_by_subgoals_passed": passed_hist,
         "collisions_by_site": site_counts(results, states, results["path"][:, -1]),
+        "curb_collisions": curb_collisions(results, states, results["path"][:, -1]),
         "categories": summarize_by_category(results, bins, errors),
         "failures": describe_failures(results, states, passed, furthest, cfg.failures),
     }

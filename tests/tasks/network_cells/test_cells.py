@@ -16,7 +16,7 @@ from truckrl.env import TruckEnv
 from truckrl.sim.vehicle import truck_extents
 from truckrl.tasks import EnvConfig, make_task
 from truckrl.tasks.network.cells.task import CELLS_TASK
-from truckrl.tools.chain import collision_sites, pooled_tables, subgoals_passed
+from truckrl.tools.chain import collision_sites, pooled_tables, route_pose, subgoals_passed
 
 HALF_PI = math.pi / 2
 #: The hand-built chain: an L-shaped route (0, 0) -> (100, 0) -> (100, 100), arc length 200 m;
@@ -277,3 +277,15 @@ def test_pooled_record_keeps_runs_apart_and_summarises_the_headline_runs():
     assert by[("run", "a")]["count"] == 4 and by[("run", "b")]["success_rate"] == 0.0
     assert by[("block types on the route, pooled", "straight")]["count"] == 4
     assert by[("route length [m], pooled", "0-150")]["success_rate"] == pytest.approx(0.75)
+
+
+def test_route_pose_by_hand():
+    """On the L-shaped route from a start 10 m along it: (40, 2) heading 0.1 rad is 30 m on,
+    2 m left, 5.73 deg off; (103, 60) heading 90 deg is 150 m on, 3 m right, 0 deg off."""
+    task = make_task(config())
+    st = hand_state(task, [(10.0, 0.0, 0.0, 0.0)] * 2)
+    pose = torch.tensor([[40.0, 2.0, 0.1, 0.0], [103.0, 60.0, HALF_PI, 0.0]])
+    along, left, error = route_pose(st, pose)
+    torch.testing.assert_close(along, torch.tensor([30.0, 150.0]))
+    torch.testing.assert_close(left, torch.tensor([2.0, -3.0]))
+    torch.testing.assert_close(error, torch.tensor([math.degrees(0.1), 0.0]))
