@@ -23,7 +23,8 @@ main           ``truckrl/__main__.py``, the ``truckrl`` command that dispatches 
 =============  ===============================================================================
 
 A task folder (``truckrl/tasks/<name>/``) spans layers by role: ``expert.py`` and anything under
-``expert/`` sit in ``planning``, ``diagnosis.py`` in ``evaluation``, the rest in ``task``.
+``expert/`` sit in ``planning``, ``diagnosis.py`` in ``evaluation``, ``tools.py`` (the folder's own
+commands, ``python -m truckrl.tasks.<name>.tools``) in ``entry``, the rest in ``task``.
 """
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ ALLOWED["api"] = ALLOWED["rl"] | {"rl"}
 #: Top-level modules and packages of the entry layer: the commands of ``truckrl``.
 ENTRY = {"train", "evaluate", "play", "export", "plan", "bench", "tools"}
 #: Task-folder modules (by their first name inside the folder) that sit above the task layer.
-TASK_ROLES = {"expert": "planning", "diagnosis": "evaluation"}
+TASK_ROLES = {"expert": "planning", "diagnosis": "evaluation", "tools": "entry"}
 
 
 def module_name(path: Path) -> str:

@@ -16,7 +16,7 @@ from truckrl.env import TruckEnv
 from truckrl.sim.vehicle import truck_extents
 from truckrl.tasks import EnvConfig, make_task
 from truckrl.tasks.network.cells.task import CELLS_TASK
-from truckrl.tools.chain import collision_sites, pooled_tables, route_pose, subgoals_passed
+from truckrl.tasks.network.tools import collision_sites, pooled_tables, route_pose, subgoals_passed
 
 HALF_PI = math.pi / 2
 #: The hand-built chain: an L-shaped route (0, 0) -> (100, 0) -> (100, 100), arc length 200 m;

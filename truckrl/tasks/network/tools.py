@@ -1,8 +1,8 @@
-"""``python -m truckrl.tools.chain``: a policy trained on one intersection, driven through road
+"""``python -m truckrl.tasks.network.tools``: a policy trained on one intersection, driven through road
 networks by the route's junction exits as sub-goals (issue 42, item 4; docs/chaining.md).
 
-    python -m truckrl.tools.chain                      # pretrained:intersection, defaults below
-    python -m truckrl.tools.chain episodes=20 junctions=[2] traffic=[1.0] out=null
+    python -m truckrl.tasks.network.tools                      # pretrained:intersection, defaults below
+    python -m truckrl.tasks.network.tools episodes=20 junctions=[2] traffic=[1.0] out=null
 
 Loads ``checkpoint`` (a policy whose task observes the shared 26 features and no extras, as the
 intersection task does), builds the sub-goal view of the network task
@@ -31,7 +31,7 @@ from pathlib import Path
 from truckrl.config.fields import ConfigError, param, validate
 from truckrl.tasks import MAX_DIFFICULTY
 
-PROG = "python -m truckrl.tools.chain"
+PROG = "python -m truckrl.tasks.network.tools"
 ABOUT = "An intersection policy driven through networks by junction-exit sub-goals."
 
 #: Route length bin edges [m] (the network task's routes are about 80-350 m per its preset).
@@ -390,8 +390,11 @@ def run(cfg: ChainConfig) -> dict:
     tol = policy.env_config.tolerance
     scale = 2.0**-cfg.difficulty
     prov = provenance("cpu")
-    if Path(sys.argv[0]).parts[-2:] == ("tools", "chain.py"):  # python -m truckrl.tools.chain
-        prov["command"] = shlex.join(["python", "-m", "truckrl.tools.chain", *sys.argv[1:]])
+    if Path(sys.argv[0]).parts[-2:] == (
+        "network",
+        "tools.py",
+    ):  # python -m truckrl.tasks.network.tools
+        prov["command"] = shlex.join(["python", "-m", __spec__.name, *sys.argv[1:]])
     data = {
         "provenance": prov,
         "checkpoint": cfg.checkpoint,
