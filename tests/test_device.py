@@ -24,8 +24,9 @@ import truckrl
 
 ROOT = Path(truckrl.__file__).parent
 
-#: Task-folder modules off the step path (demonstrations and diagnostics run host side).
-OFF_STEP_PATH = {"expert.py", "diagnosis.py"}
+#: Task-folder modules off the step path (demonstrations, diagnostics and a folder's own command
+#: run host side).
+OFF_STEP_PATH = {"expert.py", "diagnosis.py", "tools.py"}
 #: Files on the step and update path.
 STEP_PATH = sorted(
     [*(ROOT / "sim").glob("*.py"), *(ROOT / "env").glob("*.py")]
@@ -40,6 +41,7 @@ HOST_SIDE = {
     ("sim/lidar.py", "lidar_oracle"): "per-ray reference implementation, float64 on the host",
     ("sim/lidar.py", "__call__"): "SweepLidar: the paper's single-scene sweep, host side",
     ("tasks/base.py", "__init__"): "param_index: moved by Task.to",
+    ("tasks/network/task.py", "__init__"): "curriculum tables: moved by NetworkTask.to",
     ("env/truck_env.py", "__init__"): "draws a Python int seed",
     ("env/truck_env.py", "_set_seed"): "draws a Python int seed",
     ("rl/network.py", "circular_conv_index"): "index table: a module buffer, moves with .to",

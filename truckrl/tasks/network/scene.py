@@ -257,14 +257,14 @@ class Chain:
 
 
 # ------------------------------------------------------------------------------- the chain
-def _types(cfg: NetworkConfig, allowed: tuple[int, ...], what: str) -> Tensor:
+def _types(cfg: NetworkConfig, allowed: tuple[int, ...], what: str, dev) -> Tensor:
     types = [BLOCK_NAMES.index(t) for t in cfg.block_types if BLOCK_NAMES.index(t) in allowed]
     if not types:
         names = [BLOCK_NAMES[t] for t in allowed]
         raise ConfigError(
             f"env.task.network.block_types = {list(cfg.block_types)}: needs a {what} ({names})"
         )
-    return torch.tensor(types)
+    return torch.tensor(types, device=dev)
 
 
 def draw_chain(cfg: NetworkConfig, junctions: int, n: int, rand, dev) -> Network:
@@ -272,8 +272,8 @@ def draw_chain(cfg: NetworkConfig, junctions: int, n: int, rand, dev) -> Network
     not compacted."""
     K = 2 * junctions + 1
     net_cfg = replace(cfg, num_blocks=(K, K))
-    links = _types(cfg, LINK_TYPES, "link").to(dev)
-    joints = _types(cfg, JUNCTION_TYPES, "junction").to(dev)
+    links = _types(cfg, LINK_TYPES, "link", dev)
+    joints = _types(cfg, JUNCTION_TYPES, "junction", dev)
     types = tuple(sorted(set(links.tolist()) | set(joints.tolist())))
     width = uniform(cfg.road_width, rand(n))
     heading = 2.0 * math.pi * rand(n)
