@@ -58,12 +58,18 @@ from tensordict import TensorDictBase
 from torch import Tensor
 
 from truckrl.config.fields import ConfigError, build
-from truckrl.planning import controller
 from truckrl.planning.config import PlannerConfig
 from truckrl.planning.experts import task_expert
-from truckrl.planning.rollout import ALIVE_CHECK_EVERY, flat_state
+from truckrl.planning.rollout import (
+    ALIVE_CHECK_EVERY,
+    bookkeep,
+    control_orders,
+    flat_state,
+    score,
+    track,
+)
 from truckrl.planning.search import cem
-from truckrl.sim.control import CONTROL_KEYS, LATERAL_MODES, LONGITUDINAL_MODES, MODE_TABLE
+from truckrl.sim.control import CONTROL_KEYS
 from truckrl.sim.geometry import wrap_angle
 from truckrl.tasks import EnvConfig, make_task
 
@@ -226,13 +232,7 @@ class GearPlanner:
         self.num_params = NUM_GEAR_PARAMS + self.prior.shape[1]
         cfg = self.env_cfg
         self.horizon = cfg.max_steps
-        orders = []
-        for axis, modes in (("longitudinal", LONGITUDINAL_MODES), ("lateral", LATERAL_MODES)):
-            order = modes.index(getattr(cfg.control, axis))
-            orders.append(order)
-        self.lon_order, self.lat_order = orders
-        self.lon_limits = [lim for _, lim in MODE_TABLE["longitudinal"].values()]
-        self.lat_limits = [lim for _, lim in MODE_TABLE["lateral"].values()]
+        self.orders = control_orders(cfg)
         self.state_keys = ("pose", "goal", "segments", "mask", "step_count", *CONTROL_KEYS)
         self.state_keys += self.task.error_keys
 
@@ -246,16 +246,7 @@ class GearPlanner:
 
     def _score(self, s: dict[str, Any], difficulty: Tensor) -> tuple[Tensor, Tensor]:
         """``(score, worst)`` ``[N]`` as :meth:`Planner._score`."""
-        tol_pos, tol_ang = self.task.tolerances(difficulty)
-        ratios = torch.stack(
-            [
-                s[q.key] / (tol_pos if q.unit == "m" else tol_ang)
-                for q in self.task.error_quantities
-            ],
-            -1,
-        )
-        worst = ratios.amax(-1)
-        return worst + self.config.mean_weight * ratios.mean(-1), worst
+        return score(self.task, s, difficulty, self.config.mean_weight)
 
     def legs(self, start: TensorDictBase, x: Tensor) -> dict[str, Tensor]:
         """The expert's legs of candidates ``x [N, P]`` from ``start [N]``, checked: ``gear``,
@@ -332,37 +323,10 @@ class GearPlanner:
             cap = (2.0 * decel * remaining.clamp_min(0.0)).sqrt() + CREEP_SPEED
             cap = torch.where(remaining > 0.0, cap, 0.0)
             speed_ref = gear[rows, leg] * torch.minimum(vmax[rows, leg], cap)
-            lon = controller.track(
-                speed_ref,
-                [s[k] for k in ("speed", "accel", "jerk")],
-                [p[k] for k in self.lon_limits],
-                self.task.control.speed_floor(p),
-                self.lon_order,
-                dt,
-            )
-            lat = controller.track(
-                steer_ref,
-                [s[k] for k in ("steer", "steer_rate", "steer_accel")],
-                [p[k] for k in self.lat_limits],
-                -p["max_steer"],
-                self.lat_order,
-                dt,
-            )
-            action = torch.stack((lon, lat), -1)
-            new = self.task.step(s, action)
-            s = {**s, **new}
+            action = track(self.task, s, speed_ref, steer_ref, self.orders, dt)
+            s = {**s, **self.task.step(s, action)}
             flags = self.task.outcome(s, diff)
-            score, worst = self._score(s, diff)
-            alive = acc["alive"]
-            intact = alive & ~(flags["collision"] | flags["jackknife"])
-            better = intact & (score < acc["best"])
-            acc = {
-                "best": torch.where(better, score, acc["best"]),
-                "worst": torch.where(better, worst, acc["worst"]),
-                "success": acc["success"] | (alive & flags["success"]),
-                "length": torch.where(alive, s["step_count"], acc["length"]),
-                "alive": alive & ~flags["terminated"],
-            }
+            acc = bookkeep(acc, flags, s, *self._score(s, diff))
             actions[t], speeds[t], trace[t], poses[t] = action, s["speed"], leg, s["pose"]
             # the next leg once this one's end is reached at rest
             switch = (remaining <= SWITCH_DISTANCE) & (s["speed"].abs() <= SWITCH_SPEED)

@@ -80,6 +80,74 @@ from truckrl.tasks import EnvConfig, make_task
 ALIVE_CHECK_EVERY = 20
 
 
+#: The control-state bound keys of each axis, in order (speed, accel, jerk / steer, rate, accel).
+LON_LIMITS = [lim for _, lim in MODE_TABLE["longitudinal"].values()]
+LAT_LIMITS = [lim for _, lim in MODE_TABLE["lateral"].values()]
+
+
+def control_orders(cfg: EnvConfig) -> tuple[int, int]:
+    """``(longitudinal, lateral)`` order of the quantity ``cfg.control`` commands (0, 1 or 2)."""
+    return (
+        LONGITUDINAL_MODES.index(cfg.control.longitudinal),
+        LATERAL_MODES.index(cfg.control.lateral),
+    )
+
+
+def track(
+    task, s: dict[str, Any], speed_ref: Tensor, steer_ref: Tensor, orders, dt: float
+) -> Tensor:
+    """The action ``[N, 2]`` that tracks the set-points ``speed_ref`` [m/s] and ``steer_ref``
+    [rad] ``[N]`` from the flat state ``s`` with the deadbeat tracker
+    (:func:`truckrl.planning.controller.track`) in the control orders ``orders``."""
+    p = s["params"]
+    lon = controller.track(
+        speed_ref,
+        [s[k] for k in ("speed", "accel", "jerk")],
+        [p[k] for k in LON_LIMITS],
+        task.control.speed_floor(p),
+        orders[0],
+        dt,
+    )
+    lat = controller.track(
+        steer_ref,
+        [s[k] for k in ("steer", "steer_rate", "steer_accel")],
+        [p[k] for k in LAT_LIMITS],
+        -p["max_steer"],
+        orders[1],
+        dt,
+    )
+    return torch.stack((lon, lat), -1)
+
+
+def score(task, s: dict[str, Any], difficulty: Tensor, mean_weight: float) -> tuple[Tensor, Tensor]:
+    """``(score, worst)`` ``[N]``: the largest error / tolerance ratio over the task's errors
+    (``worst``; the goal test is ``worst <= 1``) plus ``mean_weight`` x their mean."""
+    tol_pos, tol_ang = task.tolerances(difficulty)
+    ratios = torch.stack(
+        [s[q.key] / (tol_pos if q.unit == "m" else tol_ang) for q in task.error_quantities], -1
+    )
+    worst = ratios.amax(-1)
+    return worst + mean_weight * ratios.mean(-1), worst
+
+
+def bookkeep(
+    acc: dict[str, Tensor], flags: dict[str, Tensor], s: dict[str, Any], sc: Tensor, worst: Tensor
+) -> dict[str, Tensor]:
+    """The candidates' running record after a step: the best ``score`` ``sc`` of an intact
+    (not collided, not jack-knifed) live candidate and its ``worst`` ratio, whether it has
+    succeeded, its length [steps] and whether it is still alive."""
+    alive = acc["alive"]
+    intact = alive & ~(flags["collision"] | flags["jackknife"])
+    better = intact & (sc < acc["best"])
+    return {
+        "best": torch.where(better, sc, acc["best"]),
+        "worst": torch.where(better, worst, acc["worst"]),
+        "success": acc["success"] | (alive & flags["success"]),
+        "length": torch.where(alive, s["step_count"], acc["length"]),
+        "alive": alive & ~flags["terminated"],
+    }
+
+
 def param_keys(reverse: bool) -> tuple[str, ...]:
     """The vehicle parameters of a task's trucks (:data:`REVERSE_KEYS` too if it reverses)."""
     return (*PARAM_KEYS, *REVERSE_KEYS) if reverse else PARAM_KEYS
@@ -128,10 +196,7 @@ class Planner:
         self.horizon = cfg.max_steps
         self.w_steer = controller.knot_matrix(self.horizon, pc.steer_knots, self.device)
         self.w_speed = controller.knot_matrix(self.horizon, pc.speed_knots, self.device)
-        self.lon_order = LONGITUDINAL_MODES.index(cfg.control.longitudinal)
-        self.lat_order = LATERAL_MODES.index(cfg.control.lateral)
-        self.lon_limits = [lim for _, lim in MODE_TABLE["longitudinal"].values()]
-        self.lat_limits = [lim for _, lim in MODE_TABLE["lateral"].values()]
+        self.orders = control_orders(cfg)
         self.state_keys = ("pose", "goal", "segments", "mask", "step_count", *CONTROL_KEYS)
         self.state_keys += self.task.error_keys
         self._step = compile_sim(self._step_fn, self.device) if pc.compile else self._step_fn
@@ -152,18 +217,8 @@ class Planner:
 
     # ------------------------------------------------------------------ one step
     def _score(self, s: dict[str, Any], difficulty: Tensor) -> tuple[Tensor, Tensor]:
-        """``(score, worst)`` ``[N]``: the largest error / tolerance ratio over the task's errors
-        (``worst``; the goal test is ``worst <= 1``) plus ``mean_weight`` x their mean."""
-        tol_pos, tol_ang = self.task.tolerances(difficulty)
-        ratios = torch.stack(
-            [
-                s[q.key] / (tol_pos if q.unit == "m" else tol_ang)
-                for q in self.task.error_quantities
-            ],
-            -1,
-        )
-        worst = ratios.amax(-1)
-        return worst + self.config.mean_weight * ratios.mean(-1), worst
+        """``(score, worst)`` ``[N]`` of :func:`score` with ``mean_weight``."""
+        return score(self.task, s, difficulty, self.config.mean_weight)
 
     def _setpoints(
         self,
@@ -221,42 +276,16 @@ class Planner:
     ) -> tuple[dict[str, Tensor], Tensor, dict[str, Tensor]]:
         """One step of every candidate: build the set-points (:meth:`_setpoints`), track them,
         advance, test the outcome and update the bookkeeping ``acc``."""
-        p, dt = s["params"], self.env_cfg.dt
+        dt = self.env_cfg.dt
         speed_ref, steer_ref = self._setpoints(
             s, ref, acc["travel"], knots, vknots, span, plan, arc
         )
-        lon = controller.track(
-            speed_ref,
-            [s[k] for k in ("speed", "accel", "jerk")],
-            [p[k] for k in self.lon_limits],
-            self.task.control.speed_floor(p),
-            self.lon_order,
-            dt,
-        )
-        lat = controller.track(
-            steer_ref,
-            [s[k] for k in ("steer", "steer_rate", "steer_accel")],
-            [p[k] for k in self.lat_limits],
-            -p["max_steer"],
-            self.lat_order,
-            dt,
-        )
-        action = torch.stack((lon, lat), -1)
+        action = track(self.task, s, speed_ref, steer_ref, self.orders, dt)
         new = self.task.step(s, action)
         after = {**s, **new}
         flags = self.task.outcome(after, difficulty)
-        score, worst = self._score(after, difficulty)
-        alive = acc["alive"]
-        intact = alive & ~(flags["collision"] | flags["jackknife"])
-        better = intact & (score < acc["best"])
-        out = {
-            "best": torch.where(better, score, acc["best"]),
-            "worst": torch.where(better, worst, acc["worst"]),
-            "success": acc["success"] | (alive & flags["success"]),
-            "length": torch.where(alive, after["step_count"], acc["length"]),
-            "alive": alive & ~flags["terminated"],
-            "travel": acc["travel"] + new["speed"].abs() * dt,
-        }
+        out = bookkeep(acc, flags, after, *self._score(after, difficulty))
+        out["travel"] = acc["travel"] + new["speed"].abs() * dt
         return new, action, out
 
     # ------------------------------------------------------------------ one batch rollout
