@@ -31,10 +31,22 @@ COLORS: dict[str, tuple[int, int, int]] = {
     "tolerance": (60, 130, 60),
     "lidar": (235, 215, 70),
     "hud": (245, 245, 245),
+    "route": (255, 140, 200),
+    "car": (245, 95, 80),
+    "car_fill": (150, 45, 40),
+    "traffic_truck": (230, 90, 230),
+    "traffic_truck_fill": (120, 40, 120),
 }
 
 _SHIFT = 4  # sub-pixel bits for OpenCV drawing calls
 _SCALE = 1 << _SHIFT
+HUD_LINE_PX = 18  # [px] pitch of the HUD text lines (the first baseline at this row too)
+
+
+def hud_rows(lines: int) -> int:
+    """Rows ``[0, hud_rows(lines))`` [px] that ``lines`` HUD text lines cover (with outline and
+    descenders): nothing a viewer must see belongs there."""
+    return HUD_LINE_PX * lines + 8 if lines else 0
 
 
 @dataclass(frozen=True)
@@ -114,7 +126,7 @@ def make_view(
 
 
 # Long on purpose: one pass paints the layers in z-order (tolerance, curbs, obstacles, LiDAR,
-# bodies, goal, HUD); split up, each piece would need the view and a dozen arrays.
+# route, traffic, goal, bodies, HUD); split up, each piece would need the view and a dozen arrays.
 def draw_scene(
     segments,
     mask=None,
@@ -134,6 +146,9 @@ def draw_scene(
     view_half_extent: float | None = None,
     hud_lines: Sequence[str] | None = None,
     arrow_length: float = 5.0,
+    route=None,
+    vehicles=None,
+    vehicle_trucks=None,
 ) -> np.ndarray:
     """Draw one scene into a new RGB image. Torch tensors or numpy arrays are accepted.
 
@@ -157,6 +172,10 @@ def draw_scene(
         metres_per_px: scale [m/px]; ignored when ``view_half_extent`` [m] is given.
         hud_lines: text lines written top-left.
         arrow_length: goal arrow length [m].
+        route: ``[R, 2]`` route polyline [m], drawn as a thin line, or ``None``.
+        vehicles: ``[V, 4, 2]`` corners of other road users [m], drawn filled, or ``None``.
+        vehicle_trucks: ``[V]`` bool, which of ``vehicles`` are trucks (drawn in the
+            ``traffic_truck`` colours; the rest in the ``car`` colours), or ``None`` (all cars).
 
     Returns:
         ``[H, W, 3]`` uint8 RGB image.
@@ -242,6 +261,22 @@ def draw_scene(
                 _SHIFT,
             )
 
+    # The route over the beams, then the traffic.
+    route = _np(route)
+    if route is not None and len(route) > 1:
+        q = _fixed(world_to_pixel(route.reshape(-1, 2), view)).reshape(-1, 1, 2)
+        cv2.polylines(img, [q], False, COLORS["route"], 1, cv2.LINE_AA, _SHIFT)
+    if vehicles is not None:
+        boxes = _np(vehicles).reshape(-1, 4, 2)
+        trucks = (
+            np.zeros(len(boxes), dtype=bool)
+            if vehicle_trucks is None
+            else _np(vehicle_trucks).reshape(-1).astype(bool)
+        )
+        for box, is_truck in zip(boxes, trucks, strict=True):
+            name = "traffic_truck" if is_truck else "car"
+            _poly(img, world_to_pixel(box, view), COLORS[name], fill=COLORS[f"{name}_fill"])
+
     # Goal footprint and arrow.
     if goal_footprint is not None:
         fp = _np(goal_footprint)
@@ -269,7 +304,7 @@ def draw_scene(
             _poly(img, corners, COLORS[name], fill=COLORS[f"{name}_fill"], thickness=2)
 
     for i, text in enumerate(hud_lines or ()):
-        x, y = 8, 18 + 18 * i
+        x, y = 8, HUD_LINE_PX * (i + 1)
         # black outline: the text shifted by one pixel each way (a thicker stroke would also
         # advance each glyph further, so the outline would drift right of the text)
         for dx, dy in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, 1), (-1, 1), (1, -1)):
@@ -281,6 +316,46 @@ def draw_scene(
     return img
 
 
+#: State keys of moving traffic: ``TRAFFIC_PREFIX + f`` for each field ``f`` of
+#: :class:`truckrl.sim.network.traffic.Traffic` (vehicle slots, their lanes and arc lengths).
+TRAFFIC_PREFIX = "tr_"
+#: State key of a route polyline ``[R, 2]`` [m] (a task that steers along a route keeps it).
+ROUTE_KEY = "route_points"
+
+
+def traffic_boxes(state) -> tuple[np.ndarray, np.ndarray] | None:
+    """The other road users of a state, read from its traffic keys (:data:`TRAFFIC_PREFIX`).
+
+    Args:
+        state: one or more states (TensorDict, batch ``[]`` or ``[n]``); only its ``tr_`` keys
+            are read.
+
+    Returns:
+        ``(corners [n, M, 4, 2] [m], truck [n, M] bool)`` of the vehicles on the road (slots that
+        are empty or waiting off the network have every corner NaN), or ``None`` when the state
+        keeps no traffic. Each vehicle's centre and heading are its lane's point at its arc
+        length (:func:`truckrl.sim.network.traffic.lane_points`), the pose the task's LiDAR and
+        collision read; nothing is stepped.
+    """
+    import dataclasses
+
+    import torch
+
+    from truckrl.sim.geometry import rectangle_corners
+    from truckrl.sim.network.traffic import Traffic, lane_points
+
+    names = [f.name for f in dataclasses.fields(Traffic)]
+    if any(TRAFFIC_PREFIX + f not in state.keys() for f in names):
+        return None
+    s = state.unsqueeze(0) if state.batch_dims == 0 else state
+    tr = Traffic(**{f: s[TRAFFIC_PREFIX + f] for f in names})
+    xy, heading = lane_points(tr, tr.lane, tr.s)
+    half = 0.5 * tr.length
+    corners = rectangle_corners(xy[..., 0], xy[..., 1], heading, half, half, 0.5 * tr.width)
+    corners = torch.where(tr.present()[..., None, None], corners, torch.nan)
+    return _np(corners), _np(tr.truck).astype(bool)
+
+
 def draw_state(
     state,
     lidar,
@@ -288,9 +363,13 @@ def draw_state(
     tolerance: tuple[float, float] | None = None,
     **draw_kwargs,
 ) -> np.ndarray:
-    """Draw one truck's state snapshot: scene, truck, goal, tolerance and its last LiDAR scan.
+    """Draw one truck's state snapshot: scene, route, traffic, truck, goal, tolerance and its last
+    LiDAR scan.
 
-    Reads the state only (no physics, no scan): the beams are the ranges the env observed.
+    Reads the state only (no physics, no scan): the beams are the ranges the env observed. A
+    state with a route (:data:`ROUTE_KEY`) gets it drawn as a thin line, one with traffic
+    (:data:`TRAFFIC_PREFIX` keys, :func:`traffic_boxes`) its vehicles filled, cars and trucks in
+    their own colours.
 
     Args:
         state: one truck's state (``TruckEnv.get_state()[i]``: pose, goal, segments, mask, kind,
@@ -311,6 +390,13 @@ def draw_state(
     tractor, trailer, _ = truck_corners(s["pose"], s["params"])
     origin = sensor_origin(s["pose"], s["params"])
     kwargs = {"center": s["pose"][0, :2].cpu(), **draw_kwargs}
+    if ROUTE_KEY in s.keys():
+        kwargs.setdefault("route", s[ROUTE_KEY][0].cpu())
+    traffic = traffic_boxes(s[:1])
+    if traffic is not None:
+        on = ~np.isnan(traffic[0][0]).any(axis=(-1, -2))
+        kwargs.setdefault("vehicles", traffic[0][0][on])
+        kwargs.setdefault("vehicle_trucks", traffic[1][0][on])
     return draw_scene(
         s["segments"][0].cpu(),
         s["mask"][0].cpu(),

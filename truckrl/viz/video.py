@@ -249,7 +249,8 @@ class FrameState:
         done_hint: extra banner text for a finished episode (what a key does next).
         key_rows: key-help rows for the panel (empty: none).
         camera: fixed camera ``{"center", "view_half_extent"}`` (:func:`fixed_camera`); None
-            follows the truck.
+            follows the truck, north up, at :func:`follow_half_extent` (a scene too large to
+            show whole).
     """
 
     state: Any
@@ -279,28 +280,52 @@ def outcome_color(label: str | None) -> tuple[int, int, int]:
     return COLORS["hud"] if good is None else OK_COLOR if good else BAD_COLOR
 
 
-def fixed_camera(start: Any, view: ViewConfig) -> dict[str, Any]:
-    """Centre and half extent [m] that show the whole start truck and the goal, with margin;
-    ``start``: the episode's start state (``env.get_state()``, one truck)."""
+def fixed_camera(start: Any, view: ViewConfig) -> dict[str, Any] | None:
+    """Centre and half extent [m] that show the whole start truck, the goal and the route (when
+    the state keeps one, :data:`~truckrl.viz.draw.ROUTE_KEY`), with margin; ``None`` when that
+    half extent exceeds ``view.follow_beyond``: a scene too large to show whole, where the camera
+    follows the truck (:func:`render_frame`). ``start``: the episode's start state
+    (``env.get_state()``, one truck)."""
     import torch
 
     from truckrl.sim.vehicle import truck_corners
+    from truckrl.viz.draw import ROUTE_KEY
 
     tractor, trailer, _ = truck_corners(start["pose"], start["params"])
-    pts = torch.cat((tractor[0], trailer[0], start["goal"][0, None, :2])).cpu()
+    parts = [tractor[0], trailer[0], start["goal"][0, None, :2]]
+    if ROUTE_KEY in start.keys():
+        parts.append(start[ROUTE_KEY][0].reshape(-1, 2))
+    pts = torch.cat(parts).cpu()
     lo, hi = pts.min(0).values, pts.max(0).values
     half = 0.5 * float((hi - lo).max()) + view.margin
+    if half > view.follow_beyond:
+        return None
     return {"center": 0.5 * (lo + hi), "view_half_extent": max(view.half_extent, half)}
+
+
+def follow_half_extent(view: ViewConfig, lidar_range: float) -> float:
+    """Half extent [m] of the camera that follows the truck through a scene too large to show
+    whole: the LiDAR's range plus ``view.margin`` (the beams' ends stay in view), at least
+    ``view.half_extent``."""
+    return max(view.half_extent, lidar_range + view.margin)
 
 
 def render_frame(fs: FrameState, view: ViewConfig) -> tuple[np.ndarray, np.ndarray]:
     """``(view_image, frame)``: the bird's-eye view with the waiting or outcome banner, and the
-    frame the viewer shows and videos record (view + HUD panel), uint8 RGB."""
+    frame the viewer shows and videos record (view + HUD panel), uint8 RGB.
+
+    The camera: centred on the truck at ``view.half_extent`` with ``view.follow``; else the
+    episode's fixed camera (``fs.camera``); or, for a scene too large to show whole
+    (``fs.camera`` None), centred on the tractor's rear axle at :func:`follow_half_extent`,
+    north up (world ``y`` up, as every view: the route and the map read the same way all
+    episode)."""
     s = fs.state
     t = int(s["step_count"]) * fs.config.dt
     kwargs: dict[str, Any] = {"size_px": view.size_px}
-    if view.follow or fs.camera is None:
+    if view.follow:
         kwargs["view_half_extent"] = view.half_extent
+    elif fs.camera is None:  # a scene larger than the view: follow the truck, north up
+        kwargs["view_half_extent"] = follow_half_extent(view, fs.config.lidar.max_range)
     else:
         kwargs.update(fs.camera)
     caption = f"t {t:4.1f} s  v {float(s['speed']):4.1f} m/s"
