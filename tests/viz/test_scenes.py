@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from truckrl.config.fields import build
+from truckrl.sim.vehicle import truck_corners
 from truckrl.tasks import EnvConfig, make_task, task_names
 from truckrl.tools.scenes import main
 
@@ -29,20 +30,16 @@ def _trailer_like(rgb):
     return (g - r > 40) & (b - r > 40) & (abs(g - b) < 30)
 
 
-#: Tasks whose start and goal lie farther apart than a tile shows: the tool frames a tile on
-#: their midpoint, so the truck can sit under the tile's text lines (docs/networks.md: the tool
-#: does not show networks yet).
-FAR_GOAL = {"network": "start and goal hundreds of metres apart: the truck is not framed"}
+#: Rows a tile's two text lines cover: baselines at 18 and 36 px, descenders and the 1 px
+#: outline below the second.
+TEXT_ROWS = 2 * 18 + 8
 
 
-@pytest.mark.parametrize(
-    "task",
-    [
-        pytest.param(t, marks=pytest.mark.skip(reason=FAR_GOAL[t])) if t in FAR_GOAL else t
-        for t in task_names()
-    ],
-)
+@pytest.mark.parametrize("task", task_names())
 def test_tool_draws_each_task_with_the_truck_at_its_start_pose(task, tmp_path, capsys):
+    """Each tile shows its truck whole, clear of the text: centred between start and goal, or,
+    where that would put the truck off the tile or under the text (a goal hundreds of metres
+    away), centred on the truck's rear axle."""
     out = tmp_path / "grid.png"
     args = ["count=3", "seed=1", "cols=2", f"tile={TILE}", f"half_extent={HALF_EXTENT}"]
     args += [f"out={out}", f"task={task}"]
@@ -56,6 +53,7 @@ def test_tool_draws_each_task_with_the_truck_at_its_start_pose(task, tmp_path, c
     cfg = build(EnvConfig, {"task": {"name": task}}, "env")
     state = make_task(cfg).sample(3, torch.Generator().manual_seed(1), torch.device("cpu"))
     pose, goal, p = state["pose"].double(), state["goal"].double(), state["params"]
+    tractor, trailer, _ = truck_corners(state["pose"], p)
     m_per_px = 2 * HALF_EXTENT / TILE
     for i in range(3):
         r, c = divmod(i, 2)
@@ -72,19 +70,33 @@ def test_tool_draws_each_task_with_the_truck_at_its_start_pose(task, tmp_path, c
         assert kinds and (0 not in kinds or curb.sum() > 20) and (1 not in kinds or edge > 20)
         assert _trailer_like(tile).sum() > 3
         # the tractor's centre: the rear axle plus half of (wheelbase + front overhang - rear
-        # overhang) along the heading; the tile is centred between start and goal, y up
+        # overhang) along the heading; y up
         ahead = 0.5 * (p["wheelbase"][i] + p["front_overhang"][i] - p["rear_overhang"][i])
         x, y, th = pose[i, 0], pose[i, 1], pose[i, 2]
-        wx, wy = x + ahead * math.cos(th), y + ahead * math.sin(th)
-        cx, cy = 0.5 * (x + goal[i, 0]), 0.5 * (y + goal[i, 1])
-        col = (TILE - 1) / 2 + (wx - cx) / m_per_px
-        row = (TILE - 1) / 2 - (wy - cy) / m_per_px
+        wx, wy = float(x + ahead * math.cos(th)), float(y + ahead * math.sin(th))
         rows, cols = np.nonzero(_tractor_like(tile))
-        assert len(rows) > 20, "no tractor drawn"
-        assert math.hypot(rows.mean() - float(row), cols.mean() - float(col)) < 2.0
+        assert len(rows) > 12, "no tractor drawn"
+        trailer_rows = np.nonzero(_trailer_like(tile))[0]
+        # what a user sees: the whole truck inside the tile, below its text lines
+        assert rows.min() >= TEXT_ROWS and trailer_rows.min() >= TEXT_ROWS, (i, rows.min())
+        assert rows.max() < TILE - 1 and cols.min() > 0 and cols.max() < TILE - 1
+        # the tile's centre: midway between start and goal if the whole start truck (its
+        # corners) and the goal then fall inside the tile and the truck below the text; else
+        # the rear axle (the truck's neighbourhood)
+        mid = 0.5 * (pose[i, :2] + goal[i, :2])
+        pts = torch.cat((tractor[i], trailer[i], goal[i, None, :2])).double() - mid
+        pc, pr = (TILE - 1) / 2 + pts[:, 0] / m_per_px, (TILE - 1) / 2 - pts[:, 1] / m_per_px
+        fits = bool((pc >= 0).all() and (pc <= TILE - 1).all() and (pr <= TILE - 1).all())
+        fits = fits and bool((pr[:-1] >= TEXT_ROWS).all() and pr[-1] >= 0)
+        if float((goal[i, :2] - pose[i, :2]).norm()) > 2 * HALF_EXTENT:
+            assert not fits  # a goal farther than the tile is wide (networks: hundreds of m)
+        cx, cy = (float(mid[0]), float(mid[1])) if fits else (float(x), float(y))
+        row = (TILE - 1) / 2 - (wy - cy) / m_per_px
+        col = (TILE - 1) / 2 + (wx - cx) / m_per_px
+        assert math.hypot(rows.mean() - row, cols.mean() - col) < 2.0, (i, fits)
         # every tractor pixel within half its diagonal (+ 3 px: the 2 px outline, blended)
         reach = math.hypot(ahead + p["rear_overhang"][i], p["tractor_width"][i] / 2)
-        dist = np.hypot(rows - float(row), cols - float(col))
+        dist = np.hypot(rows - row, cols - col)
         assert dist.max() <= float(reach) / m_per_px + 3.0, (i, dist.max())
 
 
