@@ -555,3 +555,71 @@ def test_play_policy_spec_on_the_command_line(tmp_path, monkeypatch, capsys):
     assert r.err.startswith("error: policy = 'absent_play_mod:make': module 'absent_play_mod'")
     r = run_main(capsys, "play", "policy=planner", "actions=keys.txt", "headless=true", *view)
     assert r.code == 2 and "give policy (or checkpoint) or actions, not both" in r.err
+
+
+# ---------------------------------------------------------------------------------- networks
+#: A task whose scenes are larger than the view: the camera follows the truck (the route
+#: through a road network's junctions, hundreds of metres long).
+FAR_TASK = {"name": "network"}
+
+
+def test_keyboard_drives_a_network_in_the_window_with_the_camera_on_the_truck(monkeypatch):
+    """``play task=network`` in a pygame window (dummy video driver): W held drives the truck
+    and every frame shows the tractor at the view's centre (the camera follows it)."""
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    pygame = pytest.importorskip("pygame")
+    from truckrl.viz.window import Window
+
+    view = {"size_px": 160, "panel_px": 0}
+    pc = PlayConfig(view=view, env=EnvConfig(task=FAR_TASK), difficulty=6.0, seed=2)
+    runner, _, _, _ = build_runner(pc)
+    assert runner.mode == "manual" and runner._camera is None
+    calls, centres = [], []
+
+    def key_state():
+        calls.append(1)
+        if len(calls) == 8:
+            pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.K_q, unicode="q"))
+        return {"w"}
+
+    def tractor_rows_cols(frame):
+        r, g, b = (frame[..., i].astype(int) for i in range(3))
+        return np.nonzero((b - r > 40) & (b - g > 25))  # the tractor's blues
+
+    window = Window(runner.frame.shape[1::-1], key_state=key_state)
+    try:
+        result = run_loop(
+            runner, window, window=window, fps=1000.0,
+            sinks=(lambda r: centres.append(tractor_rows_cols(r.view_image)),),
+        )  # fmt: skip
+        shown = pygame.surfarray.array3d(window.screen).swapaxes(0, 1)
+    finally:
+        window.close()
+    assert result.steps == 8 and np.array_equal(shown, runner.frame)  # Q read at poll 9
+    assert float(runner.env.get_state()[0]["speed"]) > 0
+    # the rear axle at the centre, the tractor's centre < 3 m ahead of it: 0.8125 m/px
+    # (half extent: 50 m LiDAR + 15 m margin over 80 px)
+    for rows, cols in centres:
+        assert len(rows) > 10
+        assert math.hypot(rows.mean() - 79.5, cols.mean() - 79.5) < 3.0 / 0.8125 + 1.0
+
+
+@pytest.mark.slow
+def test_a_network_checkpoint_plays_and_records(tmp_path):
+    """A checkpoint of the network task (tiny training run) drives ``play`` headless into an
+    mp4 of every frame."""
+    d = tmp_path / "run"
+    proc = run_cli("train", *TINY_TRAIN, "total_frames=64", "task=network", f"hydra.run.dir={d}")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    video = tmp_path / "drive.mp4"
+    args = [f"checkpoint={d}", "headless=true", "max_frames=6", f"record={video}"]
+    args += ["view.size_px=96", "view.panel_px=0", f"hydra.run.dir={tmp_path}"]
+    proc = run_cli("play", *args)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    cap = cv2.VideoCapture(str(video))
+    assert cap.get(cv2.CAP_PROP_FRAME_COUNT) == 6
+    frames = [cap.read()[1][..., ::-1] for _ in range(6)]
+    for f in frames:  # the tractor near the centre of every frame
+        r, g, b = (f[..., i].astype(int) for i in range(3))
+        rows, cols = np.nonzero((b - r > 40) & (b - g > 25))
+        assert len(rows) > 5 and math.hypot(rows.mean() - 47.5, cols.mean() - 47.5) < 8
