@@ -139,23 +139,60 @@ def test_env_specs_observation_and_bins():
     env.close()
 
 
+def route_arc(p: np.ndarray, pts: np.ndarray) -> float:
+    """Arc length [m] along the polyline ``pts [R, 2]`` of its point nearest to ``p``."""
+    a, b = pts[:-1], pts[1:]
+    ab = b - a
+    L2 = np.maximum((ab**2).sum(-1), 1e-12)
+    t = np.clip(((p - a) * ab).sum(-1) / L2, 0, 1)
+    k = int(np.argmin(np.linalg.norm(p - (a + t[:, None] * ab), axis=-1)))
+    return float(np.linalg.norm(ab, axis=-1)[:k].sum() + t[k] * math.sqrt(L2[k]))
+
+
 def test_start_and_goal_are_feasible_by_a_numpy_oracle(sampled):
-    """Every start option in use and the goal: on a lane centre-line facing along it, no curb
-    touching the straight truck, outside every junction disc, and no vehicle spawned on it."""
+    """Every start option in use, each curriculum level's start and the goal: on a lane
+    centre-line facing along it, no curb touching the straight truck, outside every junction
+    disc, and no vehicle spawned on it; a level's start on a lane of the block it names (or of
+    the junction after it: a junction's arm reaches out of its disc), its
+    distance to the goal along the route within the candidates' reach of the level's distance
+    (or the level's link start option), at least min_goal_gap."""
     task, state = sampled
     assert bool(state["route", "feasible"].all())
     s = numpy_of(state)
     front, rear, half = truck_of(s)
     veh, on_road = vehicle_corners(state)
-    n = state.shape[0]
+    cur, scene = task.cfg.task.curriculum, task.cfg.task.scene
+    reach = scene.start_tries * scene.start_step
+    n, J = state.shape[0], task.max_junctions
+    lanes_per_block = s["tr_lanes"].shape[1] // (2 * J + 1)
+    near_target = tried = 0
     for i in range(n):
         lanes = s["tr_lanes"][i][s["tr_lane_len"][i] > 0]
+        block_of = np.flatnonzero(s["tr_lane_len"][i] > 0) // lanes_per_block
         curbs = s["segments"][i][s["mask"][i]]
         zc, zr = (
             s["tr_zone_centre"][i][s["tr_zone_mask"][i]],
             s["tr_zone_radius"][i][s["tr_zone_mask"][i]],
         )
-        for pose in (s["start_options"][i, 0], s["start_options"][i, 1], s["goal"][i]):
+        goal_s = route_arc(s["goal"][i][:2], s["route_points"][i])
+        for v, (j, distance) in enumerate(zip(cur.junctions, cur.distance, strict=True)):
+            start, option = s["level_starts"][i, v], s["start_options"][i, J - j]
+            gap = goal_s - route_arc(start[:2], s["route_points"][i])
+            on = [polyline_distance(start[:2], lane)[0] < 1e-3 for lane in lanes]
+            # on its link, or on the arm of the junction after it (outside the junction's disc)
+            assert set(block_of[on]) & {s["level_blocks"][i, v], s["level_blocks"][i, v] + 1}
+            assert s["level_blocks"][i, v] >= 2 * (J - j), (i, v)
+            assert gap >= scene.min_goal_gap - 0.5, (i, v, gap)
+            if distance == 0.0 or np.allclose(start, option, atol=1e-4):  # the option
+                assert np.allclose(start, option, atol=1e-4), (i, v)
+                continue
+            option_gap = goal_s - route_arc(option[:2], s["route_points"][i])
+            expected = min(distance, option_gap)
+            assert abs(gap - expected) <= reach + 1.0, (i, v, gap, expected)
+            near_target += abs(gap - expected) <= 1.0
+            tried += 1
+        poses = (s["start_options"][i, 0], s["start_options"][i, 1], s["goal"][i])
+        for pose in (*poses, *s["level_starts"][i]):
             best = min(polyline_distance(pose[:2], lane) for lane in lanes)
             assert best[0] < 1e-3, (i, pose, best)
             assert abs(math.remainder(best[1] - pose[2], 2 * math.pi)) < 1e-3, (i, pose, best)
@@ -173,6 +210,7 @@ def test_start_and_goal_are_feasible_by_a_numpy_oracle(sampled):
             both = np.concatenate((box[None], veh[i][on_road[i]]))[None]
             hit = overlapping_pairs(both, np.ones(both.shape[:2], dtype=bool))
             assert not hit[0, 0].any(), (i, pose)
+    assert tried > n and near_target > 0.5 * tried  # most levels' starts at their distance
 
 
 def test_route_progress_by_hand():
@@ -218,7 +256,7 @@ def test_traffic_never_overlaps_itself_or_a_standing_truck():
         n=n,
         seed=3,
         traffic={"density": [4.0, 6.0]},
-        curriculum={"difficulty": [0.0], "junctions": [2], "traffic": [1.0]},
+        curriculum={"difficulty": [0.0], "junctions": [2], "traffic": [1.0], "distance": [0.0]},
     )
     env.reset()
     st = env.get_state()
@@ -324,25 +362,34 @@ def test_touching_a_vehicle_ends_the_episode_as_a_collision():
     assert not hit
 
 
-def test_curriculum_routes_through_more_junctions_with_more_traffic():
-    """At difficulty 0 (level 0: 1 junction, no traffic) the route has 3 blocks and no vehicle
-    drives; at 3 (2 junctions, every vehicle) 5 blocks; the blocks behind the start are out of
-    the scene (no curb of theirs in the mask)."""
+def test_curriculum_starts_near_the_goal_then_routes_through_more_junctions():
+    """At difficulty 0 (level 0: 40 m, no traffic) most routes are 40 m from start to goal
+    (the candidates reach 32 m either side; a route through no or one junction), no vehicle
+    drives, and the blocks behind the start are out of the scene; at 1.5 (the whole route
+    through 1 junction) every route has 3 blocks; at 3 (2 junctions, every vehicle) 5 blocks
+    and some traffic."""
     env = network_env(n=16, seed=1)
     env.set_difficulty(0.0)
     env.reset()
     st = env.get_state()
-    assert (st["route", "junctions"] == 1).all() and (st["route", "blocks"] == 3).all()
+    length = st["route", "route_length"]
+    assert (length > 4.0).all() and (length < 40.0 + 32.0 + 1.0).all()
+    assert ((length - 40.0).abs() < 1.0).float().mean() > 0.5
+    assert (st["route", "junctions"] <= 1).all()
     assert not st["tr_active"].any() and (st["route", "traffic_density"] == 0).all()
-    assert not (st["mask"] & (st["segment_block"] < 2)).any()
-    assert (st["mask"] & (st["segment_block"] == 2)).any(-1).all()
+    first = st["level_blocks"][torch.arange(16), 0].unsqueeze(-1)
+    assert not (st["mask"] & (st["segment_block"] < first)).any()
+    assert (st["mask"] & (st["segment_block"] == first)).any(-1).all()
+    env.set_difficulty(1.5)
+    env.reset()
+    st = env.get_state()
+    assert (st["route", "junctions"] == 1).all() and (st["route", "blocks"] == 3).all()
     env.set_difficulty(3.0)
     env.reset()
     st = env.get_state()
     assert (st["route", "junctions"] == 2).all() and (st["route", "blocks"] == 5).all()
     assert st["tr_active"].any()
-    # the start of a 2-junction route lies on the chain's first link, ahead of the 1-junction one
-    assert (st["route", "route_length"] > 0).all()
+    assert (st["route", "route_length"] > 100.0).all()
     env.close()
 
 
@@ -388,11 +435,23 @@ def test_bins_by_hand():
     [
         (
             {"curriculum": {"junctions": [1, 2]}},
-            "env.task.curriculum: difficulty, junctions and traffic must have one value per level",
+            "env.task.curriculum: difficulty, junctions, traffic and distance must have one value "
+            "per level",
         ),
         (
-            {"curriculum": {"difficulty": [0.0, 2.0, 1.0, 3.0]}},
-            "env.task.curriculum.difficulty = [0.0, 2.0, 1.0, 3.0]: must start at 0 and increase",
+            {"curriculum": {"distance": [40.0, 80.0]}},
+            "env.task.curriculum: difficulty, junctions, traffic and distance must have one value "
+            "per level, got 6, 6, 6 and 2",
+        ),
+        (
+            {"curriculum": {"distance": [-1.0, 0.0, 0.0, 0.0, 0.0, 0.0]}},
+            "env.task.curriculum.distance",
+        ),
+        ({"scene": {"start_step": 0.0}}, "start_step = 0.0 is outside the allowed range"),
+        (
+            {"curriculum": {"difficulty": [0.0, 2.0, 1.0, 3.0, 4.0, 5.0]}},
+            "env.task.curriculum.difficulty = [0.0, 2.0, 1.0, 3.0, 4.0, 5.0]: must start at 0 and "
+            "increase",
         ),
         (
             {"network": {"num_blocks": [2, 4]}},

@@ -173,25 +173,30 @@ class CurriculumConfig:
     spawned vehicles. The tolerances shrink with difficulty as in every task."""
 
     difficulty: tuple[float, ...] = param(
-        (0.0, 1.0, 2.0, 3.0), lo=0.0, hi=30.0, min_len=1, unit="-",
+        (0.0, 0.5, 1.0, 1.5, 2.0, 3.0), lo=0.0, hi=30.0, min_len=1, unit="-",
         doc="difficulty where each level starts (increasing, first 0)",
     )  # fmt: skip
     junctions: tuple[int, ...] = param(
-        (1, 1, 2, 2), lo=0, hi=16, min_len=1, unit="-",
+        (1, 1, 1, 1, 2, 2), lo=0, hi=16, min_len=1, unit="-",
         doc="junctions on the route at each level (the chain has 2 max + 1 blocks)",
     )  # fmt: skip
     traffic: tuple[float, ...] = param(
-        (0.0, 0.5, 0.5, 1.0), lo=0.0, hi=1.0, min_len=1, unit="-",
+        (0.0, 0.0, 0.5, 0.5, 0.5, 1.0), lo=0.0, hi=1.0, min_len=1, unit="-",
         doc="share of the spawned vehicles kept at each level",
+    )  # fmt: skip
+    distance: tuple[float, ...] = param(
+        (40.0, 80.0, 120.0, 0.0, 0.0, 0.0), lo=0.0, hi=10_000.0, min_len=1, unit="m",
+        doc="route arc length from the start to the goal at each level (0: the whole route)",
     )  # fmt: skip
 
     def __post_init__(self) -> None:
         validate(self, "env.task.curriculum")
         d = self.difficulty
-        if len(self.junctions) != len(d) or len(self.traffic) != len(d):
+        sizes = (len(self.junctions), len(self.traffic), len(self.distance))
+        if any(size != len(d) for size in sizes):
             raise ConfigError(
-                f"env.task.curriculum: difficulty, junctions and traffic must have one value per "
-                f"level, got {len(d)}, {len(self.junctions)} and {len(self.traffic)}"
+                f"env.task.curriculum: difficulty, junctions, traffic and distance must have one "
+                f"value per level, got {len(d)}, {sizes[0]}, {sizes[1]} and {sizes[2]}"
             )
         if d[0] != 0.0 or any(b <= a for a, b in zip(d[:-1], d[1:], strict=True)):
             raise ConfigError(
@@ -201,6 +206,11 @@ class CurriculumConfig:
     @property
     def max_junctions(self) -> int:
         return max(self.junctions)
+
+    @property
+    def starts(self) -> tuple[tuple[int, float], ...]:
+        """Each level's ``(junctions, distance)``: what places its start."""
+        return tuple(zip(self.junctions, self.distance, strict=True))
 
 
 @dataclass
@@ -219,6 +229,14 @@ class NetworkSceneConfig:
     traffic_clearance: float = param(
         2.0, lo=0.0, hi=50.0, unit="m", doc="no vehicle spawns this near a start or goal footprint"
     )
+    start_step: float = param(
+        4.0, lo=0.1, hi=100.0, unit="m",
+        doc="arc length between the candidate starts of a level with a distance",
+    )  # fmt: skip
+    start_tries: int = param(
+        8, lo=0, hi=64, unit="-",
+        doc="candidate starts each side of a level's distance before its link's start option",
+    )  # fmt: skip
     rounds: int = param(16, lo=1, hi=256, unit="-", doc="draws of a chain that breaks the rule")
     copies: int = param(
         1, lo=1, hi=64, unit="-", doc="chains drawn per episode and round (the first kept wins)"
@@ -252,6 +270,8 @@ class Chain:
     window: Tensor  # [n, chunks, window_size] long: curb slots each route stretch may reach
     window_valid: Tensor  # [n, chunks, window_size] bool
     start_options: Tensor  # [n, J + 1, 3] start pose on link L_i (only those in use checked)
+    level_starts: Tensor  # [n, V, 3] the start of each curriculum level (level_start)
+    level_blocks: Tensor  # [n, V] long: the block each level's start lies on
     goal: Tensor  # [n, 3]
     feasible: Tensor  # [n] bool
 
@@ -485,12 +505,17 @@ def box_disc_gap(box: tuple[Tensor, ...], centre: Tensor, radius: Tensor) -> Ten
 
 
 def pose_ok(
-    pose: Tensor, params: dict[str, Tensor], net: Network, zones: tuple[Tensor, Tensor, Tensor]
+    pose: Tensor,
+    params: dict[str, Tensor],
+    segments: Tensor,
+    mask: Tensor,
+    zones: tuple[Tensor, Tensor, Tensor],
 ) -> Tensor:
-    """``[n]`` bool: a truck at ``pose [n, 3]`` (articulation 0) touches no curb of ``net`` and
-    keeps its tractor and trailer outside every junction zone."""
+    """``[n]`` bool: a truck at ``pose [n, 3]`` (articulation 0) touches no curb ``segments [n,
+    E, 4]`` (valid where ``mask [n, E]``) and keeps its tractor and trailer outside every
+    junction zone ``(centre [n, Z, 2], radius [n, Z], valid [n, Z])``."""
     pose4 = torch.cat((pose, torch.zeros_like(pose[:, :1])), -1)
-    free = ~truck_collides(pose4, params, net.segments, net.mask)
+    free = ~truck_collides(pose4, params, segments, mask)
     centre, radius, zmask = zones
     tractor, trailer, _ = truck_boxes(pose4, params)
     for box in (tractor, trailer):
@@ -498,12 +523,62 @@ def pose_ok(
     return free
 
 
+def level_start(
+    cfg: NetworkSceneConfig,
+    dense: Tensor,
+    cum: Tensor,
+    link_s: Tensor,
+    goal_s: Tensor,
+    distance: float,
+    params: dict[str, Tensor],
+    net: Network,
+    zones: tuple[Tensor, Tensor, Tensor],
+) -> tuple[Tensor, Tensor]:
+    """A curriculum level's start: ``(s [n], pose [n, 3])``, its arc length along the route
+    [m] and pose.
+
+    With ``distance`` 0, the start option of the level's first link (arc length ``link_s
+    [n]``). Else the first of the candidates ``t, t + h, t - h, t + 2 h, t - 2 h, ...`` (``h =
+    start_step``, ``start_tries`` each side; ``t = max(goal_s - distance, link_s)``) that lies
+    between ``link_s`` and ``min_goal_gap`` before the goal ``goal_s [n]`` and passes
+    :func:`pose_ok`, the link's start option where none does; so the start is as feasible as
+    the option: on the route's lane centre-line (``dense``, ``cum``: the route as built, on
+    lane vertices), clear of curbs and junction zones, ``distance`` or up to ``start_tries h``
+    either side of it before the goal (farther only on the fallback).
+    """
+    xy, heading = point_at(dense, cum, link_s.unsqueeze(-1))
+    option = torch.cat((xy[:, 0], heading), -1)
+    if distance <= 0.0:
+        return link_s, option
+    target = torch.maximum(goal_s - distance, link_s)
+    steps = [0] + [sign * k for k in range(1, cfg.start_tries + 1) for sign in (1, -1)]
+    offsets = cfg.start_step * torch.tensor(steps, dtype=cum.dtype, device=cum.device)
+    s = torch.cat((target.unsqueeze(-1) + offsets, link_s.unsqueeze(-1)), -1)  # [n, C + 1]
+    xy, heading = point_at(dense, cum, s)
+    poses = torch.cat((xy, heading.unsqueeze(-1)), -1)
+    inside = (s >= link_s.unsqueeze(-1)) & (s <= (goal_s - cfg.min_goal_gap).unsqueeze(-1))
+    n = s.shape[0]
+    pick = torch.full((n,), len(steps), dtype=torch.long, device=s.device)  # the option
+    todo = torch.arange(n, device=s.device)
+    for c in range(len(steps)):  # each candidate checked on the rows still without a start
+        rows = todo[inside[todo, c]]  # a scene generator's host read, never a step's
+        if rows.numel() == 0:
+            continue
+        sub = {k: v[rows] for k, v in params.items()}
+        zone = tuple(z[rows] for z in zones)
+        ok = pose_ok(poses[rows, c], sub, net.segments[rows], net.mask[rows], zone)
+        pick[rows[ok]] = c
+        todo = todo[pick[todo] == len(steps)]
+    every = torch.arange(n, device=s.device)
+    return s[every, pick], poses[every, pick]
+
+
 def generate_episodes(
     cfg: NetworkSceneConfig,
     network: NetworkConfig,
     traffic: TrafficConfig,
     route: RouteConfig,
-    levels: tuple[int, ...],
+    levels: tuple[tuple[int, float], ...],
     params: dict[str, Tensor],
     generator: torch.Generator | None = None,
     device=None,
@@ -511,10 +586,11 @@ def generate_episodes(
 ) -> Chain:
     """``n`` episodes (module doc) for the trucks ``params {key: [n]}``, before the curriculum.
 
-    ``levels``: the junction counts the curriculum routes through; the chain has ``J = max``
-    of them, and the start options that the rule checks (and traffic avoids) are those on the
-    links ``L_{J - j}`` for each ``j`` in ``levels``. ``reach``: the LiDAR range plus
-    ``window_slack`` [m] (the curb windows')."""
+    ``levels``: each curriculum level's ``(junctions, distance)``
+    (:attr:`CurriculumConfig.starts`); the chain has ``J = max`` junctions, the start options
+    that the rule checks are those on the links ``L_{J - j}`` for each level's ``j``, and each
+    level gets its start (:func:`level_start`; traffic avoids them all). ``reach``: the LiDAR
+    range plus ``window_slack`` [m] (the curb windows')."""
     dev, params = scene_device(params, generator, device)
     n = next(iter(params.values())).shape[0]
 
@@ -569,8 +645,8 @@ def _one_round(
 ) -> Chain:
     """One draw of :func:`generate_episodes` for ``n`` trucks, feasibility marked."""
     n = front.shape[0]
-    J = max(levels)
-    used = sorted({J - j for j in levels})  # the links a start may lie on
+    J = max(j for j, _ in levels)
+    used = sorted({J - j for j, _ in levels})  # the links a level's route may start on
 
     def rand(*shape: int) -> Tensor:
         return torch.rand(*shape, generator=generator, device=dev)
@@ -591,12 +667,25 @@ def _one_round(
     feasible = (net.num_blocks == 2 * J + 1) & ~overflow
     feasible = feasible & (s_goal >= s_start[:, used].amax(-1) + cfg.min_goal_gap)
     for i in checked:
-        feasible = feasible & pose_ok(poses[:, i], params, net, zones)
-    # traffic: the start options in use and the goal reserved
+        feasible = feasible & pose_ok(poses[:, i], params, net.segments, net.mask, zones)
+    found: dict[tuple[int, float], tuple[Tensor, Tensor]] = {}
+    for j, distance in levels:
+        if (j, distance) not in found:
+            found[j, distance] = level_start(
+                cfg, dense, cum, s_start[:, J - j], s_goal, distance, params, net, zones
+            )
+    level_s = torch.stack([found[key][0] for key in levels], 1)  # [n, V]
+    level_starts = torch.stack([found[key][1] for key in levels], 1)  # [n, V, 3]
+    # the link each start lies on (an arc length in a junction's piece counts to the link
+    # before it), never before the level's first link
+    first = torch.tensor([2 * (J - j) for j, _ in levels], device=dev)
+    inside = (torch.searchsorted(block_s, level_s, right=True) - 1).clamp(0, 2 * J)
+    level_blocks = torch.maximum(inside - inside % 2, first)
+    # traffic: the start options in use, each level's start and the goal reserved
     mid = 0.5 * (front - rear)
-    sel = poses[:, checked]
+    sel = torch.cat((poses[:, checked], torch.stack([v[1] for v in found.values()], 1)), 1)
     centre = sel[..., :2] + mid.view(n, 1, 1) * _unit(sel[..., 2])
-    radius = (0.5 * (front + rear) + cfg.traffic_clearance).view(n, 1).expand(n, len(checked))
+    radius = (0.5 * (front + rear) + cfg.traffic_clearance).view(n, 1).expand(n, sel.shape[1])
     reserved = torch.cat((centre, radius.unsqueeze(-1)), -1)
     tr = spawn_traffic(net, traffic, generator, reserved)
     keep = rand(n, traffic.max_vehicles)
@@ -610,6 +699,8 @@ def _one_round(
         window_valid=valid,
         turn=turn,
         start_options=poses[:, : J + 1],
+        level_starts=level_starts,
+        level_blocks=level_blocks,
         goal=poses[:, J + 1],
         feasible=feasible,
     )

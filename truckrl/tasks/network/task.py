@@ -143,8 +143,8 @@ class NetworkTask(PoseGoal, Task):
         super().__init__(cfg)
         task = cfg.task
         self.num_extras = 2 * task.route.ahead
-        self.levels = tuple(task.curriculum.junctions)
-        self.max_junctions = max(self.levels)
+        self.levels = task.curriculum.starts
+        self.max_junctions = task.curriculum.max_junctions
         self._thresholds = torch.tensor(task.curriculum.difficulty)
         self._junctions = torch.tensor(task.curriculum.junctions)
         self._share = torch.tensor(task.curriculum.traffic)
@@ -193,6 +193,8 @@ class NetworkTask(PoseGoal, Task):
         state["block_type"] = net.block_type
         state["junction_turn"] = ch.turn
         state["start_options"] = ch.start_options
+        state["level_starts"] = ch.level_starts
+        state["level_blocks"] = ch.level_blocks
         state["keep_draw"] = ch.keep_draw
         state = self.complete_state(state)
         info = route_info(state, torch.zeros(m, dtype=torch.long, device=device))
@@ -234,11 +236,9 @@ class NetworkTask(PoseGoal, Task):
         if "start_options" not in state.keys():
             return state
         level = (difficulty.unsqueeze(-1) >= self._thresholds).sum(-1) - 1
-        j = self._junctions[level]
-        first_link = self.max_junctions - j
-        first_block = 2 * first_link
         rows = torch.arange(level.shape[0], device=level.device)
-        start = state["start_options"][rows, first_link]
+        first_block = state["level_blocks"][rows, level]
+        start = state["level_starts"][rows, level]
         state["pose"] = torch.cat((start, torch.zeros_like(start[:, :1])), -1)
         state["mask"] = state["mask"] & (state["segment_block"] >= first_block.unsqueeze(-1))
         state["net_mask"] = state["net_mask"] & state["mask"]
