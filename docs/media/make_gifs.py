@@ -10,6 +10,8 @@ as the command, with a sink that keeps the frames instead of an mp4 writer, so n
 sits between the renderer and the GIF palette. The bird's-eye view only (no HUD panel) keeps
 the files small. The script fails unless the episode ends in SUCCESS: the seeds below are scenes
 the shipped policy solves at its checkpoint's difficulty (uturn: seed 0 times out, seed 1 leaves the fixed camera).
+The drive through a road network (``network.gif``, no trained network policy yet) has its own
+script: ``docs/media/make_network_gif.py``.
 """
 
 from __future__ import annotations
