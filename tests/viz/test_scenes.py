@@ -69,6 +69,11 @@ def test_tool_draws_each_task_with_the_truck_at_its_start_pose(task, tmp_path, c
         kinds = {int(k) for k in state["kind"][i][valid]}
         assert kinds and (0 not in kinds or curb.sum() > 20) and (1 not in kinds or edge > 20)
         assert _trailer_like(tile).sum() > 3
+        # a route, where the task keeps one, as a pink line (255, 140, 200), also half blended:
+        # red above blue above green
+        r_, g_, b_ = (tile[..., k].astype(int) for k in range(3))
+        pink = ((r_ - b_ > 15) & (b_ - g_ > 20)).sum()
+        assert pink > 10 if "route_points" in state.keys() else pink == 0, pink
         # the tractor's centre: the rear axle plus half of (wheelbase + front overhang - rear
         # overhang) along the heading; y up
         ahead = 0.5 * (p["wheelbase"][i] + p["front_overhang"][i] - p["rear_overhang"][i])
