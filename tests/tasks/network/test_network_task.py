@@ -181,7 +181,7 @@ def test_start_and_goal_are_feasible_by_a_numpy_oracle(sampled):
             on = [polyline_distance(start[:2], lane)[0] < 1e-3 for lane in lanes]
             # on its link, or on the arm of the junction after it (outside the junction's disc)
             assert set(block_of[on]) & {s["level_blocks"][i, v], s["level_blocks"][i, v] + 1}
-            assert s["level_blocks"][i, v] >= 2 * (J - j), (i, v)
+            assert s["level_blocks"][i, v] >= 2 * (J - j) and s["level_blocks"][i, v] % 2 == 0
             assert gap >= scene.min_goal_gap - 0.5, (i, v, gap)
             if distance == 0.0 or np.allclose(start, option, atol=1e-4):  # the option
                 assert np.allclose(start, option, atol=1e-4), (i, v)

@@ -533,9 +533,11 @@ def level_start(
     params: dict[str, Tensor],
     net: Network,
     zones: tuple[Tensor, Tensor, Tensor],
+    rows: Tensor,
 ) -> tuple[Tensor, Tensor]:
     """A curriculum level's start: ``(s [n], pose [n, 3])``, its arc length along the route
-    [m] and pose.
+    [m] and pose, searched on the chains ``rows`` (long; the others, to be redrawn, keep the
+    option).
 
     With ``distance`` 0, the start option of the level's first link (arc length ``link_s
     [n]``). Else the first of the candidates ``t, t + h, t - h, t + 2 h, t - 2 h, ...`` (``h =
@@ -557,18 +559,25 @@ def level_start(
     xy, heading = point_at(dense, cum, s)
     poses = torch.cat((xy, heading.unsqueeze(-1)), -1)
     inside = (s >= link_s.unsqueeze(-1)) & (s <= (goal_s - cfg.min_goal_gap).unsqueeze(-1))
-    n = s.shape[0]
-    pick = torch.full((n,), len(steps), dtype=torch.long, device=s.device)  # the option
-    todo = torch.arange(n, device=s.device)
-    for c in range(len(steps)):  # each candidate checked on the rows still without a start
-        rows = todo[inside[todo, c]]  # a scene generator's host read, never a step's
-        if rows.numel() == 0:
-            continue
-        sub = {k: v[rows] for k, v in params.items()}
-        zone = tuple(z[rows] for z in zones)
-        ok = pose_ok(poses[rows, c], sub, net.segments[rows], net.mask[rows], zone)
-        pick[rows[ok]] = c
-        todo = todo[pick[todo] == len(steps)]
+    n, C = s.shape[0], len(steps)
+    pick = torch.full((n,), C, dtype=torch.long, device=s.device)  # the option
+    # the first candidate on every row searched, then the others at once on the rows it failed
+    # (the same first pass: most rows end at it; each check's fixed costs dominate small ones)
+    for first, last in ((0, 1), (1, C)):
+        at = rows[pick[rows] == C]  # a scene generator's host read, never a step's
+        if at.numel() == 0 or first >= last:
+            break
+        k = last - first
+        rep = at.repeat_interleave(k)  # row-major: candidates of a row side by side
+        cand = torch.arange(first, last, device=s.device).repeat(at.numel())
+        sub = {key: v[rep] for key, v in params.items()}
+        zone = tuple(z[rep] for z in zones)
+        ok = inside[rep, cand] & pose_ok(
+            poses[rep, cand], sub, net.segments[rep], net.mask[rep], zone
+        )
+        ok = ok.view(-1, k)
+        found = ok.any(-1)
+        pick[at[found]] = first + ok.to(torch.uint8).argmax(-1)[found]
     every = torch.arange(n, device=s.device)
     return s[every, pick], poses[every, pick]
 
@@ -668,18 +677,19 @@ def _one_round(
     feasible = feasible & (s_goal >= s_start[:, used].amax(-1) + cfg.min_goal_gap)
     for i in checked:
         feasible = feasible & pose_ok(poses[:, i], params, net.segments, net.mask, zones)
+    kept = feasible.nonzero().squeeze(-1)  # a scene generator's host read, never a step's
     found: dict[tuple[int, float], tuple[Tensor, Tensor]] = {}
     for j, distance in levels:
         if (j, distance) not in found:
             found[j, distance] = level_start(
-                cfg, dense, cum, s_start[:, J - j], s_goal, distance, params, net, zones
+                cfg, dense, cum, s_start[:, J - j], s_goal, distance, params, net, zones, kept
             )
     level_s = torch.stack([found[key][0] for key in levels], 1)  # [n, V]
     level_starts = torch.stack([found[key][1] for key in levels], 1)  # [n, V, 3]
     # the link each start lies on (an arc length in a junction's piece counts to the link
     # before it), never before the level's first link
     first = torch.tensor([2 * (J - j) for j, _ in levels], device=dev)
-    inside = (torch.searchsorted(block_s, level_s, right=True) - 1).clamp(0, 2 * J)
+    inside = (torch.searchsorted(block_s.contiguous(), level_s, right=True) - 1).clamp(0, 2 * J)
     level_blocks = torch.maximum(inside - inside % 2, first)
     # traffic: the start options in use, each level's start and the goal reserved
     mid = 0.5 * (front - rear)
