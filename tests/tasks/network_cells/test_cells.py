@@ -161,7 +161,7 @@ def test_drawn_chains_subgoals_lie_past_the_exits_on_the_lanes():
     (along the lane, numpy) from the lane's start (the junction's exit) and facing along it, or
     at the final goal; the sub-goals of junctions behind the start count as passed."""
     env = TruckEnv(num_envs=12, config=config(), seed=5)
-    env.set_difficulty(0.0)  # level 0: one junction, the start on L_1
+    env.set_difficulty(1.5)  # level 3: one junction, the whole route, the start on L_1
     env.reset()
     st = env.get_state()
     assert st["subgoal_index"].tolist() == [1] * 12

@@ -101,7 +101,9 @@ def chain_env(base, cfg: ChainConfig, junctions: int, share: float, subgoals: bo
     from truckrl.tasks.network.scene import CurriculumConfig
 
     task = CellsTaskConfig(
-        curriculum=CurriculumConfig(difficulty=(0.0,), junctions=(junctions,), traffic=(share,)),
+        curriculum=CurriculumConfig(
+            difficulty=(0.0,), junctions=(junctions,), traffic=(share,), distance=(0.0,)
+        ),
         subgoal=SubgoalConfig(
             past_exit=cfg.past_exit, switch=cfg.switch, junctions=subgoals, horizon=cfg.horizon
         ),
