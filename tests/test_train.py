@@ -231,21 +231,21 @@ def test_init_starts_a_new_run_from_another_runs_weights(run_dir, tmp_path):
 
 
 def test_fine_tune_of_the_shipped_policy_names_its_beams(tmp_path):
-    """The fine-tune of docs/training.md: the shipped policy sees 16 beams, the default run 32; without
-    ``env.lidar.num_beams=16`` the run stops in one line that says so, with it the run starts
-    from those weights."""
-    proc = train("init=pretrained", f"hydra.run.dir={tmp_path / 'a'}", check=False)
+    """The fine-tune of docs/training.md: the shipped policy sees the default run's 32 beams; a
+    run whose env gives 16 stops in one line that names the setting, the default env starts from
+    those weights."""
+    proc = train(
+        "init=pretrained", "env.lidar.num_beams=16", f"hydra.run.dir={tmp_path / 'a'}", check=False
+    )
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert (
         proc.stderr.strip()
         .splitlines()[-1]
-        .endswith("16 LiDAR beams; this run's env gives 26 and 32 (set env.lidar.num_beams=16)")
+        .endswith("32 LiDAR beams; this run's env gives 26 and 16 (set env.lidar.num_beams=32)")
     )
     ok = tmp_path / "b"
-    train(
-        "init=pretrained", "env.lidar.num_beams=16", f"total_frames={BATCH}", f"hydra.run.dir={ok}"
-    )
-    assert load_checkpoint(ok)["num_beams"] == 16
+    train("init=pretrained", f"total_frames={BATCH}", f"hydra.run.dir={ok}")
+    assert load_checkpoint(ok)["num_beams"] == 32
 
 
 def test_train_env_changes_the_training_envs_only(evaluated):
