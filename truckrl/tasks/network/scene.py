@@ -561,8 +561,8 @@ def level_start(
     inside = (s >= link_s.unsqueeze(-1)) & (s <= (goal_s - cfg.min_goal_gap).unsqueeze(-1))
     n, C = s.shape[0], len(steps)
     pick = torch.full((n,), C, dtype=torch.long, device=s.device)  # the option
-    # the first candidate on every row searched, then the others at once on the rows it failed
-    # (the same first pass: most rows end at it; each check's fixed costs dominate small ones)
+    # the first candidate on every row, then all the others at once on the rows where it
+    # failed: a row's later candidates are checked only where they can change its pick
     for first, last in ((0, 1), (1, C)):
         at = rows[pick[rows] == C]  # a scene generator's host read, never a step's
         if at.numel() == 0 or first >= last:
