@@ -2,7 +2,7 @@
 # The GPU figures of docs/benchmarks.md ("GPU"), in one go, on a machine with one CUDA GPU and
 # truckrl's dependencies importable. Run from the repository root:
 #
-#   launch/gpu.sh OUT [checks|train|demos|quality|controls|all] [MINUTES]
+#   launch/gpu.sh OUT [checks|train|demos|quality|precision|controls|all] [MINUTES]
 #
 #   checks: the CUDA tests (tests/test_device.py: no host sync in env.step, a collector + PPO
 #           iteration that stays on the GPU), `bench env device=cuda` at N = 4,096 ... 262,144
@@ -17,6 +17,10 @@
 #           held-out check first reads log.quality_target (0.95) at difficulty 6 (quality_reached),
 #           or MINUTES, with held-out checks every EVAL_FRAMES frames (default 10,000,000); then
 #           its last checkpoint on 1,000 held-out scenes (seed 12345) at difficulty 6;
+#   precision: fine-tune INIT (default pretrained) with `experiment=gpu_demos` (no demonstrations)
+#           from difficulty 6 up to 8 (0.117 m, 0.23 deg) until training's held-out check first
+#           reads 0.90 at difficulty 8, or MINUTES; then INIT, the run's last.pt and its best.pt on
+#           1,000 held-out scenes (seed 12345) at difficulty 8, and last.pt at 6 (precision_*.json);
 #   controls: `experiment=gpu_demos control=C` for each C of CONTROLS (default "jerk_accel
 #           accel_rate"), side by side on the one GPU, each for MINUTES; then each run's last.pt
 #           and best.pt on 1,000 held-out scenes (seed 12345) at difficulty 6, with the smoothness
@@ -30,7 +34,7 @@
 # themselves go to RUNS (default outputs/gpu). Every step runs even if an earlier one fails; the
 # exit code is the number of failures.
 set -u
-OUT=${1:?usage: launch/gpu.sh OUT [checks|train|demos|quality|controls|all] [MINUTES]}
+OUT=${1:?usage: launch/gpu.sh OUT [checks|train|demos|quality|precision|controls|all] [MINUTES]}
 WHAT=${2:-all}
 MIN=${3:-8}
 RUNS=${RUNS:-outputs/gpu}
@@ -94,6 +98,24 @@ if [ "$WHAT" = quality ]; then
     grep -h "quality_reached" "$RUNS/quality/train.log" | tee "$OUT/quality_reached.txt"
     step quality_eval python3 -m truckrl.evaluate checkpoint="$RUNS/quality" difficulty=6 \
         episodes=1000 seed=12345 device=cuda output="$OUT/quality_eval.json"
+fi
+if [ "$WHAT" = precision ]; then
+    INIT=${INIT:-pretrained}
+    step precision timeout $((MIN * 60 + 90)) python3 -m truckrl.train experiment=gpu_demos \
+        init="$INIT" demos.episodes=0 demos.bc_coeff=0 curriculum.start_difficulty=6 \
+        curriculum.max_difficulty=8 log.quality_difficulty=8 log.quality_target=0.9 \
+        stop_on_quality=true max_minutes="$MIN" log.eval_interval_frames="${EVAL_FRAMES:-10000000}" \
+        hydra.run.dir="$RUNS/precision" overwrite=true log.progress_bar=false log.video_interval=0
+    cp "$RUNS/precision/train.log" "$OUT/precision_run.log"
+    for k in last best; do cp "$RUNS/precision/checkpoints/$k.pt" "$OUT/precision_$k.pt"; done
+    ev() {  # ev NAME CHECKPOINT DIFFICULTY
+        step "precision_$1" python3 -m truckrl.evaluate checkpoint="$2" difficulty="$3" \
+            episodes=1000 seed=12345 device=cuda output="$OUT/precision_$1.json" &
+    }
+    ev init_d8 "$INIT" 8; ev last_d8 "$RUNS/precision/checkpoints/last.pt" 8
+    ev best_d8 "$RUNS/precision/checkpoints/best.pt" 8; ev last_d6 "$RUNS/precision/checkpoints/last.pt" 6
+    wait
+    for k in init_d8 last_d8 best_d8 last_d6; do [ -f "$OUT/precision_$k.json" ] || fails=$((fails + 1)); done
 fi
 if [ "$WHAT" = controls ]; then
     runs=(${CONTROLS:-jerk_accel accel_rate})
