@@ -45,7 +45,7 @@ from truckrl.sim.network.config import (
     T_JUNCTION,
     NetworkConfig,
 )
-from truckrl.sim.roads import first_valid, uniform
+from truckrl.sim.roads import uniform
 
 
 @dataclass
@@ -214,38 +214,61 @@ def grow(
     rect_mask = torch.zeros(n, 0, dtype=torch.bool, device=dev)
     kept: list[tuple[Block, Tensor, Tensor, Tensor, Tensor, Tensor]] = []
     overlapped = []
+    every = torch.arange(n, device=dev)
     for k in range(K):
         R = 1 if k == 0 else rounds
         kind, params, entry, exit_ = draw(k, R * n)
-        w = width.repeat(R)
-        block = generate(cfg, types, kind, w, params)
-        angle, shift = placement(block, entry, pose.repeat(R, 1))
-        if exit_.is_floating_point():
-            others = block.socket_mask & (
-                torch.arange(S, device=dev).unsqueeze(0) != entry.unsqueeze(-1)
-            )
-            exit_ = pick_socket(others, exit_)
-        # against its parent: shortened by socket_slack at the ends, so the joint is no overlap;
-        # against older blocks: padded by clearance / 2 all round
-        fp, F0 = moved_footprint(block, angle, shift), rects.shape[1] - F
-        hit = rects_overlap(
-            fp, rects[:, F0:].repeat(R, 1, 1), block.rect_mask, rect_mask[:, F0:].repeat(R, 1),
-            0.5 * cfg.clearance, cfg.socket_slack,
-        ) | rects_overlap(
-            fp, rects[:, :F0].repeat(R, 1, 1), block.rect_mask, rect_mask[:, :F0].repeat(R, 1),
-            0.5 * cfg.clearance, -0.5 * cfg.clearance,
-        )  # fmt: skip
-        ok, row = first_valid(~hit.view(R, n))
+        # candidates are generated and tested round by round, each round only for the networks
+        # whose earlier candidates all overlapped: the same first fitting candidate as testing
+        # all R at once (round 0's where none fits), at the cost of about one round
+        first = torch.zeros(n, dtype=torch.long, device=dev)
+        ok = torch.zeros(n, dtype=torch.bool, device=dev)
+        rows = every
+        for j in range(R):
+            if j > 0:
+                rows = (~ok).nonzero().squeeze(-1)  # a scene generator's host read
+                if rows.numel() == 0:
+                    break
+            c = j * n + rows
+            block_j = generate(cfg, types, kind[c], width[rows], params[c])
+            angle_j, shift_j = placement(block_j, entry[c], pose[rows])
+            exit_j = exit_[c]
+            if exit_j.is_floating_point():
+                others = block_j.socket_mask & (
+                    torch.arange(S, device=dev).unsqueeze(0) != entry[c].unsqueeze(-1)
+                )
+                exit_j = pick_socket(others, exit_j)
+            # against its parent: shortened by socket_slack at the ends, so the joint is no
+            # overlap; against older blocks: padded by clearance / 2 all round
+            fp, F0 = moved_footprint(block_j, angle_j, shift_j), rects.shape[1] - F
+            hit = rects_overlap(
+                fp, rects[rows, F0:], block_j.rect_mask, rect_mask[rows, F0:],
+                0.5 * cfg.clearance, cfg.socket_slack,
+            ) | rects_overlap(
+                fp, rects[rows, :F0], block_j.rect_mask, rect_mask[rows, :F0],
+                0.5 * cfg.clearance, -0.5 * cfg.clearance,
+            )  # fmt: skip
+            if j == 0:  # round 0 fills every network (kept where no round fits)
+                block, angle, shift, exits = block_j, angle_j, shift_j, exit_j
+                ok = ~hit
+                continue
+            fit = ~hit
+            won = rows[fit]
+            for f in fields(Block):
+                getattr(block, f.name)[won] = getattr(block_j, f.name)[fit]
+            angle[won], shift[won], exits[won] = angle_j[fit], shift_j[fit], exit_j[fit]
+            first[won] = j
+            ok[won] = True
+        row = first * n + every
         wanted = alive & (k < target)
         placed = wanted & ok
         overlapped.append(wanted & ~ok)
         # only the kept candidate of each network is moved whole
-        block = Block(**{f.name: getattr(block, f.name)[row] for f in fields(Block)})
-        block = transform(block, angle[row], shift[row])
-        kept.append((block, kind[row], params[row], entry[row], exit_[row], placed))
+        block = transform(block, angle, shift)
+        kept.append((block, kind[row], params[row], entry[row], exits, placed))
         rects = torch.cat((rects, block.rects), 1)
         rect_mask = torch.cat((rect_mask, block.rect_mask & placed.unsqueeze(-1)), 1)
-        pose = block.sockets[torch.arange(n, device=dev), exit_[row]]
+        pose = block.sockets[every, exits]
         alive = placed
     blocks, kinds, params, entries, exits, placed = zip(*kept, strict=True)
     present = torch.stack(placed, 1)  # [n, K]

@@ -69,6 +69,7 @@ vehicle where its draw is below the level's traffic share.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import torch
@@ -472,22 +473,52 @@ def route_windows(
     """
     n, R = cum.shape
     G = chunk_pieces(R, chunks)
-    first = (torch.arange(chunks, device=cum.device) * G).clamp_max(R - 1)
+    E, dev = segments.shape[1], cum.device
+    first = (torch.arange(chunks, device=dev) * G).clamp_max(R - 1)
     last = (first + G).clamp_max(R - 1)
     mid = 0.5 * (points[:, first] + points[:, last])  # [n, chunks, 2]
     half = 0.5 * (cum[:, last] - cum[:, first])
-    x0, y0, x1, y1 = (v.unsqueeze(1) for v in segments.unbind(-1))  # [n, 1, E]
+    # the valid curbs first, in slot order (padding is never near): the test below runs over
+    # the batch's largest curb count instead of every slot
+    order = torch.sort((~mask).to(torch.uint8), dim=-1, stable=True).indices
+    V = max(1, int(mask.sum(-1).max()))  # a scene generator's host read, never a step's
+    order = order[:, :V]
+    seg = segments.gather(1, order.unsqueeze(-1).expand(n, V, 4))
+    x0, y0, x1, y1 = (v.unsqueeze(1) for v in seg.unbind(-1))  # [n, 1, V]
     px, py = mid[..., :1], mid[..., 1:]
     dx, dy = x1 - x0, y1 - y0
     t = (((px - x0) * dx + (py - y0) * dy) / (dx * dx + dy * dy).clamp_min(1e-12)).clamp(0, 1)
     near = torch.hypot(px - x0 - t * dx, py - y0 - t * dy) <= reach + half.unsqueeze(-1)
-    near = near & mask.unsqueeze(1)  # [n, chunks, E]
+    near = near & mask.gather(1, order).unsqueeze(1)  # [n, chunks, V]
     count = near.sum(-1)
-    order = torch.sort((~near).to(torch.uint8), dim=-1, stable=True).indices
-    size = min(size, segments.shape[1])  # a window of every curb at most
-    window = order[..., :size]
-    valid = torch.arange(size, device=cum.device) < count.unsqueeze(-1)
-    return window, valid, (count > size).any(-1)
+    size = min(size, E)  # a window of every curb at most
+    # each near curb's slot to its rank among the near ones (in slot order), the rest and any
+    # beyond the window's size to a spare column that is dropped
+    rank = torch.where(near, near.cumsum(-1) - 1, size).clamp_max(size)
+    window = torch.zeros(n, chunks, size + 1, dtype=torch.long, device=dev)
+    window.scatter_(2, rank, order.unsqueeze(1).expand(n, chunks, V))
+    valid = torch.arange(size, device=dev) < count.unsqueeze(-1)
+    return window[..., :size], valid, (count > size).any(-1)
+
+
+def window_chunk(s: Tensor, total: Tensor, points: int, chunks: int) -> Tensor:
+    """The route stretch (:func:`route_windows`) of arc length ``s [m, ...]`` [m] along routes
+    of length ``total [m, 1...]`` resampled to ``points`` points: long, like ``s``."""
+    piece = (s / total.clamp_min(1e-9) * (points - 1)).floor().long().clamp(0, points - 2)
+    return (piece // chunk_pieces(points, chunks)).clamp_max(chunks - 1)
+
+
+def window_scene(
+    segments: Tensor, mask: Tensor, window: Tensor, valid: Tensor, rows: Tensor, chunk: Tensor
+) -> tuple[Tensor, Tensor]:
+    """The curbs of window ``chunk [m]`` (long) of the chains ``rows [m]`` (long): ``([m, W,
+    4], [m, W])``, ``W`` the largest curb count among them (the windows' valid slots come
+    first; a host read, for scene generation only)."""
+    w, v = window[rows, chunk], valid[rows, chunk]
+    cut = max(1, int(v.sum(-1).max()))
+    w, v = w[:, :cut], v[:, :cut]
+    r = rows.unsqueeze(-1)
+    return segments[r, w], mask[r, w] & v
 
 
 # ----------------------------------------------------------------------- start, goal, checks
@@ -531,7 +562,7 @@ def level_start(
     goal_s: Tensor,
     distance: float,
     params: dict[str, Tensor],
-    net: Network,
+    curbs: Callable[[Tensor, Tensor], tuple[Tensor, Tensor]],
     zones: tuple[Tensor, Tensor, Tensor],
     rows: Tensor,
 ) -> tuple[Tensor, Tensor]:
@@ -546,7 +577,9 @@ def level_start(
     :func:`pose_ok`, the link's start option where none does; so the start is as feasible as
     the option: on the route's lane centre-line (``dense``, ``cum``: the route as built, on
     lane vertices), clear of curbs and junction zones, ``distance`` or up to ``start_tries h``
-    either side of it before the goal (farther only on the fallback).
+    either side of it before the goal (farther only on the fallback). ``curbs(rows [m], s [m])``
+    gives the curbs ``([m, W, 4], [m, W])`` a pose at arc length ``s`` of the chains ``rows``
+    may touch.
     """
     xy, heading = point_at(dense, cum, link_s.unsqueeze(-1))
     option = torch.cat((xy[:, 0], heading), -1)
@@ -572,9 +605,7 @@ def level_start(
         cand = torch.arange(first, last, device=s.device).repeat(at.numel())
         sub = {key: v[rep] for key, v in params.items()}
         zone = tuple(z[rep] for z in zones)
-        ok = inside[rep, cand] & pose_ok(
-            poses[rep, cand], sub, net.segments[rep], net.mask[rep], zone
-        )
+        ok = inside[rep, cand] & pose_ok(poses[rep, cand], sub, *curbs(rep, s[rep, cand]), zone)
         ok = ok.view(-1, k)
         found = ok.any(-1)
         pick[at[found]] = first + ok.to(torch.uint8).argmax(-1)[found]
@@ -666,7 +697,8 @@ def _one_round(
     # a start option on every link L_0 .. L_J (blocks 0, 2, ...), the goal on L_J
     s_start = block_s[:, 0 : 2 * J + 1 : 2] + (rear + cfg.start_margin).unsqueeze(-1)
     s_goal = block_s[:, -1] - front - cfg.goal_margin
-    xy, heading = point_at(dense, cum, torch.cat((s_start, s_goal.unsqueeze(-1)), 1))
+    s_pose = torch.cat((s_start, s_goal.unsqueeze(-1)), 1)
+    xy, heading = point_at(dense, cum, s_pose)
     poses = torch.cat((xy, heading.unsqueeze(-1)), -1)  # [n, J + 2, 3]
     checked = [*used, J + 1]
     route_cum = route_cumulative(points)
@@ -675,14 +707,32 @@ def _one_round(
     )
     feasible = (net.num_blocks == 2 * J + 1) & ~overflow
     feasible = feasible & (s_goal >= s_start[:, used].amax(-1) + cfg.min_goal_gap)
+    # a pose's checks read the curb window of its route stretch, which holds every curb the
+    # truck can touch while its footprint (the farthest point ``reach_truck`` from the rear
+    # axle, on the route within a resampled piece ``step`` of the stretch) lies within the
+    # windows' reach; every curb of the chain otherwise (a tiny LiDAR range). A chain whose
+    # window overflows is redrawn whatever its poses.
+    total = cum[:, -1:]
+    R = points.shape[1]
+    step = (total[:, 0] / (R - 1)).amax()
+    reach_truck = torch.hypot(torch.maximum(front, rear), truck_extents(params)[2]).amax()
+    windowed = bool(reach_truck + 2.0 * step <= reach)  # a scene generator's host read
+
+    def curbs(rows: Tensor, s: Tensor) -> tuple[Tensor, Tensor]:
+        if not windowed:
+            return net.segments[rows], net.mask[rows]
+        chunk = window_chunk(s, total[rows, 0], R, cfg.window_chunks)
+        return window_scene(net.segments, net.mask, window, valid, rows, chunk)
+
+    every = torch.arange(n, device=dev)
     for i in checked:
-        feasible = feasible & pose_ok(poses[:, i], params, net.segments, net.mask, zones)
+        feasible = feasible & pose_ok(poses[:, i], params, *curbs(every, s_pose[:, i]), zones)
     kept = feasible.nonzero().squeeze(-1)  # a scene generator's host read, never a step's
     found: dict[tuple[int, float], tuple[Tensor, Tensor]] = {}
     for j, distance in levels:
         if (j, distance) not in found:
             found[j, distance] = level_start(
-                cfg, dense, cum, s_start[:, J - j], s_goal, distance, params, net, zones, kept
+                cfg, dense, cum, s_start[:, J - j], s_goal, distance, params, curbs, zones, kept
             )
     level_s = torch.stack([found[key][0] for key in levels], 1)  # [n, V]
     level_starts = torch.stack([found[key][1] for key in levels], 1)  # [n, V, 3]
