@@ -17,9 +17,10 @@
 #           held-out check first reads log.quality_target (0.95) at difficulty 6 (quality_reached),
 #           or MINUTES, with held-out checks every EVAL_FRAMES frames (default 10,000,000); then
 #           its last checkpoint on 1,000 held-out scenes (seed 12345) at difficulty 6;
-#   precision: fine-tune INIT (default pretrained) with `experiment=gpu_demos` (no demonstrations)
-#           from difficulty 6 up to 8 (0.117 m, 0.23 deg) until training's held-out check first
-#           reads 0.90 at difficulty 8, or MINUTES; then INIT, the run's last.pt and its best.pt on
+#   precision: `python -m truckrl.train experiment=gpu_d8` (the shipped intersection policy, or
+#           INIT, fine-tuned from difficulty 6 up to 8: 0.117 m, 0.23 deg) until training's
+#           held-out check first reads 0.90 at difficulty 8, its 60 M frames, or MINUTES; then
+#           INIT, the run's last.pt and its best.pt on
 #           1,000 held-out scenes (seed 12345) at difficulty 8, and last.pt at 6 (precision_*.json);
 #   controls: `experiment=gpu_demos control=C` for each C of CONTROLS (default "jerk_accel
 #           accel_rate"), side by side on the one GPU, each for MINUTES; then each run's last.pt
@@ -100,11 +101,9 @@ if [ "$WHAT" = quality ]; then
         episodes=1000 seed=12345 device=cuda output="$OUT/quality_eval.json"
 fi
 if [ "$WHAT" = precision ]; then
-    INIT=${INIT:-pretrained}
-    step precision timeout $((MIN * 60 + 90)) python3 -m truckrl.train experiment=gpu_demos \
-        init="$INIT" demos.episodes=0 demos.bc_coeff=0 curriculum.start_difficulty=6 \
-        curriculum.max_difficulty=8 log.quality_difficulty=8 log.quality_target=0.9 \
-        stop_on_quality=true max_minutes="$MIN" log.eval_interval_frames="${EVAL_FRAMES:-10000000}" \
+    INIT=${INIT:-pretrained:intersection}
+    step precision timeout $((MIN * 60 + 90)) python3 -m truckrl.train experiment=gpu_d8 \
+        init="$INIT" stop_on_quality=true max_minutes="$MIN" \
         hydra.run.dir="$RUNS/precision" overwrite=true log.progress_bar=false log.video_interval=0
     cp "$RUNS/precision/train.log" "$OUT/precision_run.log"
     for k in last best; do cp "$RUNS/precision/checkpoints/$k.pt" "$OUT/precision_$k.pt"; done

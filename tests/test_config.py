@@ -53,6 +53,25 @@ def test_gpu_demos_experiment_is_demos_with_a_gpu_batch():
             to_config(TrainConfig, gpu)
 
 
+def test_gpu_d8_experiment_is_gpu_demos_fine_tuning_the_shipped_policy_up_to_difficulty_8():
+    """experiment=gpu_d8 changes gpu_demos only where its file says: the shipped weights, no
+    demonstrations, the curriculum 6 -> 8, quality counted at 90 % at 8, a frame budget."""
+    d8 = to_config(TrainConfig, compose_config("train", "experiment=gpu_d8", "device=cpu"))
+    base = to_config(TrainConfig, compose_config("train", "experiment=gpu_demos", "device=cpu"))
+    expected = replace(
+        base,
+        init="pretrained:intersection",
+        total_frames=60_000_000,
+        max_minutes=None,
+        demos=replace(base.demos, episodes=0, bc_coeff=0.0),
+        curriculum=replace(base.curriculum, start_difficulty=6.0, max_difficulty=8.0),
+        log=replace(base.log, quality_difficulty=8.0, quality_target=0.9,
+                    eval_interval_frames=10_000_000),  # fmt: skip
+    )
+    assert d8 == expected
+    assert base.train_env["task"]["scene"]["crossing_prob"] == 1.0  # the same training scenes
+
+
 @pytest.mark.parametrize(
     "value, message",
     [
