@@ -65,8 +65,9 @@ def test_gpu_d8_experiment_is_gpu_demos_fine_tuning_the_shipped_policy_up_to_dif
         max_minutes=None,
         demos=replace(base.demos, episodes=0, bc_coeff=0.0),
         curriculum=replace(base.curriculum, start_difficulty=6.0, max_difficulty=8.0),
-        log=replace(base.log, quality_difficulty=8.0, quality_target=0.9,
-                    eval_interval_frames=10_000_000),  # fmt: skip
+        log=replace(
+            base.log, quality_difficulty=8.0, quality_target=0.9, eval_interval_frames=10_000_000
+        ),  # fmt: skip
     )
     assert d8 == expected
     assert base.train_env["task"]["scene"]["crossing_prob"] == 1.0  # the same training scenes
