@@ -48,6 +48,8 @@ def _in_process(capsys, *argv: str) -> tuple[int, str, str]:
         (["parallel_envs=[1]", "workers=2"], "parallel_envs = [1]"),
         (["compile=maybe"], "compile = 'maybe'"),
         (["gym=true", "repeats=0"], "repeats = 0"),
+        (["tasks=[intersection,nope]"], "tasks[1] = 'nope' is not one of"),
+        (["tasks=[intersection]", "task=dock"], "tasks = ['intersection']: not with task"),
         (["--steps", "2"], "'--steps'"),
         (["no_such_key=1"], "unknown field(s) ['no_such_key']"),
     ],
@@ -65,7 +67,7 @@ def test_every_option_has_help(capsys):
     for key in (
         "quick", "envs", "workers", "parallel_envs", "steps", "compile", "paper", "collector",
         "scaling", "eager_max_envs", "plot", "peers", "peer_envs", "device", "threads", "seed",
-        "out", "gym", "repeats",
+        "out", "gym", "repeats", "task", "tasks",
     ):  # fmt: skip
         line = next(x for x in stdout.splitlines() if x.strip().startswith(key + " "))
         assert len(line.strip()) > len(key) + 8, key  # followed by a description
@@ -107,6 +109,26 @@ def test_gym_row_beside_the_torchrl_row(tmp_path, capsys):
     pairs = [g / t for t, g in zip(torchrl["runs"], gym["runs"], strict=True)]
     assert gym["x torchrl"] == pytest.approx(statistics.median(pairs))
     assert torchrl["x torchrl"] is None and "x torchrl" in record["table"]
+
+
+def test_tasks_rows_alternate_in_one_run(tmp_path, capsys):
+    """tasks=[a,b]: at each N a row per task, each the median of its runs, and ``x a``, the
+    median over the rounds of the task's run over a's run of the same round."""
+    import statistics
+
+    from truckrl.bench import env as bench_env
+
+    argv = ["quick=true", "tasks=[intersection,dock]", "envs=[4]", "steps=2", "warmup=1"]
+    bench_env.run(bench_env.parse([*argv, "repeats=3", f"out={tmp_path}"]))
+    assert "dock / intersection at N=4:" in capsys.readouterr().out
+    record = json.loads(next(tmp_path.glob("env-*.json")).read_text())
+    first, second = record["rows"]
+    assert (first["task"], second["task"]) == ("intersection", "dock")
+    for row in (first, second):
+        assert len(row["runs"]) == 3 and row["steps/s"] == statistics.median(row["runs"])
+    pairs = [b / a for a, b in zip(first["runs"], second["runs"], strict=True)]
+    assert second["x intersection"] == pytest.approx(statistics.median(pairs))
+    assert first["x intersection"] == 1.0 and "x intersection" in record["table"]
 
 
 def test_gym_without_gymnasium_is_one_line_exit_2(tmp_path, capsys, monkeypatch):

@@ -96,8 +96,9 @@ class EnvBenchConfig:
         False, doc="also gymnasium.make_vec's VectorEnv at each batched N (needs the gym extra)"
     )
     repeats: int = param(
-        3, lo=1, hi=1000, doc="gym: measurements of each of the two rows, alternating (medians)"
-    )
+        3, lo=1, hi=1000,
+        doc="gym, tasks: measurements of each row, alternating (medians)",
+    )  # fmt: skip
     scaling: bool = param(
         False, doc="instead of the rows above: steps/s against N, beams and obstacles; PNG too"
     )
@@ -117,6 +118,10 @@ class EnvBenchConfig:
     task: str | None = param(
         None, doc="task folder of the throughput rows (env.task.name; null: the default task)"
     )
+    tasks: tuple[str, ...] = param(
+        (), min_len=0,
+        doc="task folders timed back to back at each batched N, alternating (instead of task)",
+    )  # fmt: skip
     out: str = param(str(DEFAULT_OUT_DIR), doc="JSON record: a folder, or a .json path")
 
     def __post_init__(self) -> None:
@@ -153,6 +158,20 @@ def parse(argv: list[str]) -> EnvBenchConfig:
             fail(str(e).replace("env.task.name", "task", 1))
         if args.scaling or args.peers or args.gym:
             fail(f"task = {args.task!r}: scaling, peers and gym measure the default task only")
+    if args.tasks:
+        from truckrl.config.fields import ConfigError
+        from truckrl.tasks import task_class
+
+        for i, name in enumerate(args.tasks):
+            try:
+                task_class(name)
+            except ConfigError as e:
+                fail(str(e).replace("env.task.name", f"tasks[{i}]", 1))
+        if args.task is not None or args.scaling or args.peers or args.gym:
+            fail(
+                f"tasks = {list(args.tasks)}: not with task, scaling, peers or gym "
+                "(each measures one task)"
+            )
     return args
 
 
@@ -163,8 +182,9 @@ def _make_env(
     seed: int,
     overrides: dict | None = None,
     task: str | None = None,
+    fresh_graphs: bool = True,
 ) -> TruckEnv:
-    if compile:
+    if compile and fresh_graphs:
         # Every env of a new size or config compiles new graphs of the same functions (step,
         # observation): without a reset, dynamo stops compiling them after
         # torch._dynamo.config.recompile_limit (8) graphs and runs the later rows eagerly.
@@ -318,6 +338,9 @@ def _throughput_rows(args: EnvBenchConfig, compiled: bool, rows: list[dict]) -> 
     """One compile mode's rows: batched ``TruckEnv`` at each N of ``envs``, then
     ``ParallelEnv`` at each total of ``parallel_envs`` (split over ``workers``)."""
     for n in args.envs:
+        if args.tasks:
+            _task_rows(args, compiled, n, rows)
+            continue
         env = _make_env(n, compiled, args.device, args.seed, task=args.task)
         if not args.gym:
             sps, warm = steps_per_second(env, args.steps, args.warmup)
@@ -344,6 +367,32 @@ def _throughput_rows(args: EnvBenchConfig, compiled: bool, rows: list[dict]) -> 
         _record(rows, "parallel", args.workers, per, compiled, sps, warm)
 
 
+def _task_rows(args: EnvBenchConfig, compiled: bool, n: int, rows: list[dict]) -> None:
+    """``tasks=[...]``: one batched ``TruckEnv`` of ``n`` trucks per task, measured ``repeats``
+    times each, alternating (every task sees the same machine load); a row per task with its
+    median, its runs and ``x <first task>``, the median over the rounds of its run over the
+    first task's run of that round."""
+    # one graph reset for the whole set: a reset between them would drop the graphs of the
+    # envs made before it, and each would compile again inside the timed loop of a later round
+    envs = [
+        _make_env(n, compiled, args.device, args.seed, task=t, fresh_graphs=i == 0)
+        for i, t in enumerate(args.tasks)
+    ]
+    runs: list[list[tuple[float, float]]] = [[] for _ in envs]
+    for _ in range(args.repeats):
+        for env, task_runs in zip(envs, runs, strict=True):
+            task_runs.append(steps_per_second(env, args.steps, args.warmup))
+    ref = f"x {args.tasks[0]}"
+    for task, task_runs in zip(args.tasks, runs, strict=True):
+        sps = statistics.median(r[0] for r in task_runs)
+        _record(rows, "batched", 1, n, compiled, sps, task_runs[0][1])
+        rows[-1]["task"] = task
+        rows[-1]["runs"] = [r[0] for r in task_runs]
+        pairs = [r[0] / f[0] for f, r in zip(runs[0], task_runs, strict=True)]
+        rows[-1][ref] = statistics.median(pairs)
+        print(f"  {task} / {args.tasks[0]} at N={n}: {rows[-1][ref]:.4f}", flush=True)
+
+
 def _summarize(
     args: EnvBenchConfig, rows: list[dict], paper_sps: float | None, t_start: float
 ) -> dict:
@@ -354,6 +403,11 @@ def _summarize(
         for r in rows:
             r.setdefault("x torchrl", None)
         columns = [c for c in rows[0] if c != "runs"]
+    if args.tasks:
+        for r in rows:
+            r.setdefault("task", None)
+            r.setdefault(f"x {args.tasks[0]}", None)
+        columns = [c for c in rows[-1] if c != "runs"]
     table = print_table("TruckEnv env-steps/s (random policy, resets included)", rows, columns)
     best = max(rows, key=lambda r: r["steps/s"])
     summary = {
