@@ -26,9 +26,10 @@ setting); its optimizer, curriculum and counters are not used, so give the diffi
 at as ``curriculum.start_difficulty``.
 
 Resuming (``resume=<checkpoint or run dir>``) continues in the original run dir with the
-checkpoint's state and saved config but for :data:`~truckrl.config.schemas.RESUME_OVERRIDES` (from the
-command line); an older checkpoint branches into a new run dir. ``total_frames`` counts all
-sessions, ``max_minutes`` this one. The envs restart with fresh episodes seeded from ``(seed,
+checkpoint's state and saved config but for what the command line sets of
+:data:`~truckrl.config.schemas.RESUME_OVERRIDES` (a resume without ``total_frames`` keeps the
+run's frame budget); an older checkpoint branches into a new run dir. ``total_frames`` counts
+all sessions, ``max_minutes`` this one. The envs restart with fresh episodes seeded from ``(seed,
 iteration)``: a faithful continuation, not a bit-identical one.
 """
 
@@ -90,9 +91,17 @@ def train(tc: Any, run_dir: Path, state: dict | None = None, parent: dict | None
     return trainer.counters
 
 
-def run(tc: Any, job_dir: Path, explicit_dir: bool = True, started: float | None = None) -> Any:
+def run(
+    tc: Any,
+    job_dir: Path,
+    explicit_dir: bool = True,
+    started: float | None = None,
+    given: tuple[str, ...] | None = None,
+) -> Any:
     """Plan the session (run dir, resume or branch; :func:`~truckrl.rl.session.plan_session`)
-    and train; ``tc.resume``'s checkpoint supplies the config but for ``RESUME_OVERRIDES``.
+    and train; ``tc.resume``'s checkpoint supplies the config but for ``RESUME_OVERRIDES``, of
+    which a resume takes only what its command line sets (``given``, the dotted paths of its
+    overrides; None: all of them, :func:`~truckrl.rl.session.resumed_config`).
     ``started``: ``time.monotonic()`` at the session's start (default: now)."""
     started = time.monotonic() if started is None else started
     from truckrl.config.schemas import RESUME_OVERRIDES, TrainConfig
@@ -107,7 +116,7 @@ def run(tc: Any, job_dir: Path, explicit_dir: bool = True, started: float | None
     try:
         plan = plan_session(tc.resume, tc.overwrite, job_dir, explicit_dir)
         if plan.state:
-            tc = merged_config(plan.state, asdict(tc), TrainConfig, RESUME_OVERRIDES, log)
+            tc = merged_config(plan.state, asdict(tc), TrainConfig, RESUME_OVERRIDES, log, given)
         init = load_training_state(tc.init) if tc.init and not plan.state else None
         return train(tc, plan.run_dir, plan.state, plan.parent, stop, init, started)
     finally:
@@ -133,13 +142,14 @@ def main(tc: Any, raw: Any) -> float:
 
     from truckrl.rl.checkpoint import load_checkpoint
     from truckrl.rl.progress import sweep_objective
-    from truckrl.rl.session import ignore_stop_signals
+    from truckrl.rl.session import ignore_stop_signals, override_paths
 
     hc = HydraConfig.get()
     named = any(o.startswith("hydra.run.dir=") for o in hc.overrides.hydra)
     started = _STARTED.pop() if _STARTED else None  # a sweep's later jobs: their own start
     run_dir = Path(hc.runtime.output_dir)  # a resume in place runs Hydra in the run dir
-    run(tc, run_dir, explicit_dir=hc.mode == RunMode.RUN and named, started=started)
+    given = override_paths(list(hc.overrides.task))
+    run(tc, run_dir, explicit_dir=hc.mode == RunMode.RUN and named, started=started, given=given)
     ignore_stop_signals()  # the run is over: a late Ctrl-C must not turn the exit into a traceback
     state = load_checkpoint(run_dir)  # the run's last.pt: its config (a resume's) and curriculum
     cc = yaml.safe_load(state["config"])["curriculum"]

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import torch
+import yaml
 
 from tests.reliability.harness import (
     BATCH,
@@ -21,7 +22,7 @@ from tests.reliability.harness import (
     run_session,
 )
 from truckrl.rl import checkpoint as ckpt
-from truckrl.rl.session import prepare_argv
+from truckrl.rl.session import override_paths, prepare_argv, resumed_config
 
 ROOT_USER = os.geteuid() == 0  # root ignores permission bits
 
@@ -210,3 +211,47 @@ def test_a_requeued_sweep_job_resumes_its_own_run_dir(tmp_path, capsys, monkeypa
     assert run_main(capsys, "train", *args, f"total_frames={2 * BATCH}").code == 0
     assert assert_consistent(sweep / "0")["iteration"] == 2
     assert "resumed" in (sweep / "0" / "train.log").read_text()
+
+
+# ------------------------------------------------------------------ what a resume keeps
+def test_resumed_config_takes_from_the_command_line_only_what_it_sets():
+    """Hand-built configs: a key of ``keep`` comes from the command line at the paths it names
+    (and ``resume`` / ``overwrite`` always), the rest from the checkpoint; without the paths
+    (a caller with no command line) every key of ``keep`` comes from the command line."""
+    import logging
+
+    saved = {"total_frames": 100, "max_minutes": None, "log": {"a": 1, "b": 2}, "ppo": {"lr": 1},
+             "resume": None, "overwrite": True}  # fmt: skip
+    current = {"total_frames": None, "max_minutes": 60, "log": {"a": 9, "b": 8}, "ppo": {"lr": 5},
+               "resume": "R", "overwrite": False}  # fmt: skip
+    keep = ("total_frames", "max_minutes", "log", "resume", "overwrite")
+    log = logging.getLogger("test")
+    given = ("resume", "log.b", "ppo.lr")
+    assert resumed_config(saved, current, keep, log, given) == {
+        "total_frames": 100, "max_minutes": None, "log": {"a": 1, "b": 8}, "ppo": {"lr": 1},
+        "resume": "R", "overwrite": False}  # fmt: skip
+    assert saved["log"] == {"a": 1, "b": 2}  # the checkpoint's config is not written to
+    assert resumed_config(saved, current, keep, log) == {
+        "total_frames": None, "max_minutes": 60, "log": {"a": 9, "b": 8}, "ppo": {"lr": 1},
+        "resume": "R", "overwrite": False}  # fmt: skip
+    assert override_paths(["+log.backend_args.x=1", "~demos", "resume=a=b", "seed=3"]) == (
+        "log.backend_args.x", "resume", "seed")  # fmt: skip
+
+
+def test_a_resume_keeps_the_frame_budget_and_log_values_its_command_line_does_not_set(
+    tmp_path, capsys
+):
+    """A frame-budgeted run resumed with ``truckrl train resume=RUN`` stops at its own budget
+    (the default ``max_minutes`` must not replace it) and keeps its held-out check cadence."""
+    run = tmp_path / "run"
+    evals = "log.eval_interval_frames=1000000"
+    r = run_main(capsys, "train", *TINY, f"total_frames={2 * BATCH}", evals, f"hydra.run.dir={run}")
+    assert r.code == 0, r.err
+    r = run_main(capsys, "train", *TINY, "max_minutes=0.05", f"resume={run}")
+    assert r.code == 0, r.err
+    assert "stopped: total_frames reached" in r.out + r.err
+    state = ckpt.load_checkpoint(run)
+    assert state["counters"]["frames"] == 2 * BATCH  # trained no further
+    cfg = yaml.safe_load(state["config"])  # the resumed session's config, saved at its stop
+    assert (cfg["total_frames"], cfg["max_minutes"]) == (2 * BATCH, 0.05)
+    assert cfg["log"]["eval_interval_frames"] == 1_000_000 and cfg["log"]["progress_bar"] is False

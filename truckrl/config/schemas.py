@@ -127,8 +127,9 @@ class CheckpointConfig:
     )
 
 
-#: Top-level keys (:class:`TrainConfig` fields) a resumed run takes from the command line; all
-#: others come from the checkpoint (``truckrl.train.resumed_config``).
+#: Top-level keys (:class:`TrainConfig` fields) a resumed run takes from its command line where
+#: that sets them (the rest of each from the checkpoint); all others come from the checkpoint
+#: (``truckrl.rl.session.resumed_config``).
 RESUME_OVERRIDES = (
     "total_frames",
     "max_minutes",

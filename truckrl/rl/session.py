@@ -257,18 +257,62 @@ class Counters:
     quality: dict | None = None
 
 
-def resumed_config(saved: dict, current: dict, keep: tuple[str, ...], log: Any) -> dict:
-    """The checkpoint's config with the keys ``keep`` taken from ``current`` (logs the others)."""
+#: Keys a resumed session always takes from its own command line: they say how to start it.
+SESSION_KEYS = ("resume", "overwrite")
+
+
+def override_paths(overrides: list[str]) -> tuple[str, ...]:
+    """The dotted config paths a command line's ``KEY=VALUE`` overrides set (``+``, ``++`` and
+    ``~`` prefixes dropped): ``["+log.backend_args.x=1"]`` -> ``("log.backend_args.x",)``."""
+    return tuple(o.split("=", 1)[0].lstrip("+~") for o in overrides if "=" in o)
+
+
+def resumed_config(
+    saved: dict,
+    current: dict,
+    keep: tuple[str, ...],
+    log: Any,
+    given: tuple[str, ...] | None = None,
+) -> dict:
+    """The checkpoint's config with the keys ``keep`` taken from ``current`` (logs the others).
+
+    ``given``: the dotted paths the command line set (:func:`override_paths`). With it, a key of
+    ``keep`` comes from ``current`` only at the paths given there (and :data:`SESSION_KEYS`
+    always), so a resume without ``total_frames`` keeps the run's frame budget and one with
+    ``log.progress_bar=false`` keeps the run's other ``log`` values; None (a caller without a
+    command line): every key of ``keep`` from ``current``.
+    """
     current = _plain(current)
     ignored = sorted(
         k for k in set(current) | set(saved) if k not in keep and current.get(k) != saved.get(k)
     )
     if ignored:
         log.info(f"resume: keeping the checkpoint's {', '.join(ignored)} (command line differs)")
-    return {**saved, **{k: current[k] for k in keep if k in current}}
+    if given is None:
+        return {**saved, **{k: current[k] for k in keep if k in current}}
+    out = {**saved, **{k: current[k] for k in SESSION_KEYS if k in current}}
+    for path in given:
+        *parents, leaf = path.split(".")
+        if path.split(".")[0] not in keep:
+            continue  # logged above where it differs
+        src, dst = current, out
+        for name in parents:
+            src = src.get(name) if isinstance(src, dict) else None
+            dst[name] = dict(dst.get(name) or {})  # a copy: the saved config is not written to
+            dst = dst[name]
+        if isinstance(src, dict) and leaf in src:
+            dst[leaf] = src[leaf]
+    return out
 
 
-def merged_config(state: dict, current: dict, schema: type, keep: tuple[str, ...], log: Any) -> Any:
+def merged_config(
+    state: dict,
+    current: dict,
+    schema: type,
+    keep: tuple[str, ...],
+    log: Any,
+    given: tuple[str, ...] | None = None,
+) -> Any:
     """The config a resumed session runs with (:func:`resumed_config`), built as ``schema``.
 
     Raises:
@@ -277,7 +321,7 @@ def merged_config(state: dict, current: dict, schema: type, keep: tuple[str, ...
     from truckrl.rl.policy import saved_config
 
     try:
-        return build(schema, resumed_config(saved_config(state), current, keep, log))
+        return build(schema, resumed_config(saved_config(state), current, keep, log, given))
     except ConfigError as e:
         raise CheckpointError(f"{state['path']}: its saved config is invalid ({e})") from None
 
