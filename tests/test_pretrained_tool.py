@@ -139,8 +139,13 @@ def test_a_tiny_build_writes_the_policy_and_its_card(tmp_path, capsys):
     args = [
         "task=intersection", "allow_dirty=true", f"out={out}", f"run_dir={run_dir}",
         "episodes=6", "threads=1", f"train.total_frames={2 * TINY_BATCH}", "train.env.max_steps=20",
-        *(f"train.{o}" for o in TINY_TRAIN),
+        "train.max_minutes=0.0001", *(f"train.{o}" for o in TINY_TRAIN),
     ]  # fmt: skip
+    # stopped before its frame budget (here by a time limit; a Ctrl-C alike): nothing ships
+    assert call(*args) == 2
+    assert f"run_dir={run_dir} resume=true continues it" in capsys.readouterr().err
+    assert not out.exists()
+    args.append("resume=true")
     assert call(*args) == 0, capsys.readouterr().err
     assert shipped_digests() == before  # the shipped files are untouched
     state = load_checkpoint(out)
@@ -168,7 +173,7 @@ def test_a_tiny_build_writes_the_policy_and_its_card(tmp_path, capsys):
         command,
         "truckrl train experiment=pretrained_intersection seed=0 "
         f"total_frames={2 * TINY_BATCH} env.max_steps=20",
-        f"threads=1 hydra.run.dir={run_dir}",
+        f"threads=1 hydra.run.dir={run_dir}\ntruckrl train resume={run_dir} threads=1 max_minutes=null",
         f"| commit | `{facts['commit']}` (",
         f"| frames | {2 * TINY_BATCH} |",
         "| torch threads | 1 |",
@@ -182,8 +187,10 @@ def test_a_tiny_build_writes_the_policy_and_its_card(tmp_path, capsys):
     ):
         assert text in card, text
     assert "${" not in card and "<!--" not in card
-    assert call(*args) == 2  # the run dir holds a checkpoint now: refused, nothing trained
+    assert call(*args[:-1]) == 2  # the run dir holds a checkpoint now: refused, nothing trained
     assert "already holds a checkpoint" in capsys.readouterr().err
+    assert call(*args[:-1], "seed=1", "resume=true") == 2  # another seed's run: refused
+    assert "has seed = 0, this command 1" in capsys.readouterr().err
 
 
 def test_the_card_says_dirty(tmp_path):

@@ -117,6 +117,7 @@ def run(
         plan = plan_session(tc.resume, tc.overwrite, job_dir, explicit_dir)
         if plan.state:
             tc = merged_config(plan.state, asdict(tc), TrainConfig, RESUME_OVERRIDES, log, given)
+            tc.check_stops()
         init = load_training_state(tc.init) if tc.init and not plan.state else None
         return train(tc, plan.run_dir, plan.state, plan.parent, stop, init, started)
     finally:

@@ -255,3 +255,8 @@ def test_a_resume_keeps_the_frame_budget_and_log_values_its_command_line_does_no
     cfg = yaml.safe_load(state["config"])  # the resumed session's config, saved at its stop
     assert (cfg["total_frames"], cfg["max_minutes"]) == (2 * BATCH, 0.05)
     assert cfg["log"]["eval_interval_frames"] == 1_000_000 and cfg["log"]["progress_bar"] is False
+    # a resume may unset the budget only where the run then still stops: one line, exit 2
+    unset = ["max_minutes=null", "total_frames=null", "stop_difficulty=0"]  # (no hang if not)
+    r = run_main(capsys, "train", *TINY, *unset, f"resume={run}")
+    assert r.code == 2 and r.err.strip().endswith("(both are null: the run might never stop)")
+    assert ckpt.load_checkpoint(run)["counters"]["frames"] == 2 * BATCH

@@ -285,11 +285,16 @@ class TrainConfig:
         from truckrl.tasks.config import with_env_overrides
 
         with_env_overrides(self.env, self.train_env, fixed=True, where="train_env")
+        if self.resume is None:  # a resume's stop rules may come from its run: checked merged
+            self.check_stops()
+        self.ppo.check_batch(self.collector.frames_per_batch)
+
+    def check_stops(self) -> None:
+        """Refuse in one line a run that sets neither ``total_frames`` nor ``max_minutes``."""
         if self.total_frames is None and self.max_minutes is None:
             raise ConfigError(
                 "set total_frames and/or max_minutes (both are null: the run might never stop)"
             )
-        self.ppo.check_batch(self.collector.frames_per_batch)
 
 
 @dataclass

@@ -22,6 +22,9 @@ the card says so), it
 ``train.KEY=VALUE`` changes the training config as ``truckrl train KEY=VALUE`` would (tests use a
 tiny frame budget); the card then shows them in both commands. Bad input, a dirty tree and a run
 dir that already holds a checkpoint print one line and exit with code 2 before any training.
+A stopped build (Ctrl-C, a lost machine) goes on with the same command plus ``run_dir=RUN
+resume=true``: ``truckrl train resume=RUN`` continues the run to its frame budget, then the
+scoring and the card follow; the card shows both training commands.
 """
 
 from __future__ import annotations
@@ -91,6 +94,11 @@ class PretrainedConfig:
     allow_dirty: bool = param(
         False, doc="build from a work tree with uncommitted changes (the card says dirty)"
     )
+    resume: bool = param(
+        False,
+        doc="continue the stopped training in run_dir (same task, seed and frame budget) to "
+        "its budget, then score it and write the card",
+    )
     train: dict[str, Any] = param(
         {}, doc="training config overrides, as for truckrl train (train.total_frames=4096)"
     )
@@ -105,6 +113,8 @@ class PretrainedConfig:
             raise ConfigError("train.threads: give threads=N, which this command passes on")
         if self.out is not None and not self.out.endswith(".pt"):
             raise ConfigError(f"out = {self.out!r}: a .pt file to write")
+        if self.resume and not self.run_dir:
+            raise ConfigError("resume=true continues a run: give its run_dir=RUN")
 
 
 def check_clean(allow_dirty: bool) -> dict:
@@ -126,6 +136,27 @@ def check_clean(allow_dirty: bool) -> dict:
             "names the code that made the policy, or allow_dirty=true (the card then says dirty)"
         )
     return source
+
+
+def check_resumable(last: Path, tc: Any, seed: int) -> None:
+    """Refuse in one line a ``resume=true`` whose run dir holds no checkpoint, or a run of
+    another task, seed or frame budget than this command would train (``tc``: its config)."""
+    if not last.is_file():
+        raise ConfigError(f"resume=true: {last} does not exist (run_dir holds no stopped run)")
+    import yaml
+
+    from truckrl.rl.checkpoint import load_checkpoint
+
+    saved = yaml.safe_load(load_checkpoint(last)["config"])
+    mine = {"task": tc.env.task.name, "seed": seed, "total_frames": tc.total_frames}
+    theirs = {"task": saved["env"]["task"]["name"], "seed": saved["seed"],
+              "total_frames": saved["total_frames"]}  # fmt: skip
+    for key, value in mine.items():
+        if theirs[key] != value:
+            raise ConfigError(
+                f"resume=true: the run in {last.parent.parent} has {key} = {theirs[key]!r}, "
+                f"this command {value!r}"
+            )
 
 
 def _quote(value: str) -> str:
@@ -297,8 +328,14 @@ def run(cfg: PretrainedConfig, argv: list[str], overrides: list[str]) -> dict:
     difficulty = tc.curriculum.max_difficulty if cfg.difficulty is None else cfg.difficulty
     stamp = datetime.now().strftime("%Y-%m-%d/%H-%M-%S")
     run_dir = Path(cfg.run_dir or f"outputs/pretrained/{task}/{stamp}")
-    if (run_dir / CHECKPOINT_DIR / LAST_NAME).exists():
-        raise ConfigError(f"run_dir = {str(run_dir)!r} already holds a checkpoint: name another")
+    last = run_dir / CHECKPOINT_DIR / LAST_NAME
+    if cfg.resume:
+        check_resumable(last, tc, cfg.seed)
+    elif last.exists():
+        raise ConfigError(
+            f"run_dir = {str(run_dir)!r} already holds a checkpoint: name another, or "
+            "resume=true to continue it"
+        )
     out = Path(cfg.out) if cfg.out else TASKS_DIR / task / "pretrained.pt"
     _writable_dir(out.parent, "out")
     _writable_dir(run_dir.parent, "run_dir")
@@ -308,8 +345,12 @@ def run(cfg: PretrainedConfig, argv: list[str], overrides: list[str]) -> dict:
     threads = cfg.threads or torch.get_num_threads()
     command = shlex.join(["truckrl", "tools", "pretrained", *argv])
     train = train_command(head, threads, run_dir)
-    print(f"{command}\ntraining: {shlex.join(train)}", flush=True)
-    code = train_child(train)
+    ran = [train]
+    if cfg.resume:  # the run's own config and frame budget, whatever time the stop was about
+        resume = [f"resume={_quote(str(run_dir))}", f"threads={threads}", "max_minutes=null"]
+        ran.append(["truckrl", "train", *resume])
+    print(f"{command}\ntraining: {shlex.join(ran[-1])}", flush=True)
+    code = train_child(ran[-1])
     ckpt = run_dir / CHECKPOINT_DIR / (BEST_NAME if cfg.checkpoint == "best" else LAST_NAME)
     if code != 0 or not ckpt.is_file():
         raise ConfigError(
@@ -320,7 +361,8 @@ def run(cfg: PretrainedConfig, argv: list[str], overrides: list[str]) -> dict:
     if tc.total_frames is not None and done < tc.total_frames:
         raise ConfigError(
             f"training stopped at {done:,} of total_frames = {tc.total_frames:,} frames (a "
-            f"signal?): nothing was copied; the run is in {run_dir}"
+            f"signal?): nothing was copied; the same command with run_dir={run_dir} "
+            "resume=true continues it"
         )
 
     from truckrl.tools.stats import commit_of, heldout_by_bin, machine
@@ -340,7 +382,7 @@ def run(cfg: PretrainedConfig, argv: list[str], overrides: list[str]) -> dict:
         "source": recorded,
         "commit": commit_of(recorded) or "unknown (not a git checkout)",
         "command": command,
-        "train_command": shlex.join(train),
+        "train_command": "\n".join(shlex.join(c) for c in ran),
         "run_dir": str(run_dir),
         "checkpoint": cfg.checkpoint,
         "frames": int(state["counters"]["frames"]),
