@@ -11,6 +11,7 @@ from dataclasses import asdict
 import pytest
 
 from tests.conftest import TINY_BATCH, TINY_TRAIN
+from tests.reliability.harness import run_main
 from truckrl import cli
 from truckrl.config.schemas import TrainConfig
 from truckrl.evaluation.categories import task_bins
@@ -141,8 +142,12 @@ def test_a_tiny_build_writes_the_policy_and_its_card(tmp_path, capsys):
         "episodes=6", "threads=1", f"train.total_frames={2 * TINY_BATCH}", "train.env.max_steps=20",
         "train.max_minutes=0.0001", *(f"train.{o}" for o in TINY_TRAIN),
     ]  # fmt: skip
-    # stopped before its frame budget (here by a time limit; a Ctrl-C alike): nothing ships
-    assert call(*args) == 2
+    # stopped before its frame budget (here by a time limit; a Ctrl-C alike): nothing ships.
+    # This session trains in this process; the resume below runs the real child process.
+    in_process = lambda command: run_main(capsys, "train", *command[2:]).code  # noqa: E731
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(pretrained, "train_child", in_process)
+        assert call(*args) == 2
     assert f"run_dir={run_dir} resume=true continues it" in capsys.readouterr().err
     assert not out.exists()
     args.append("resume=true")
