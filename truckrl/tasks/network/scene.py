@@ -34,7 +34,8 @@ from the link's entry (``rear``: the truck's extent behind its rear axle), the *
 ahead). The curriculum (:meth:`~truckrl.tasks.network.task.NetworkTask.on_reset`) picks the start on ``L_{J-j}`` for a
 route through ``j`` junctions. A chain is kept when every one of these poses
 
-* touches no curb (:func:`~truckrl.sim.collision.truck_collides` on the chain's curbs),
+* touches no curb (:func:`~truckrl.sim.collision.truck_collides` on the curb window of its
+  route stretch, below: every curb the truck can touch is in it),
 * keeps its tractor and trailer boxes outside every junction zone (a disc
   :func:`~truckrl.sim.network.traffic.junction_zones`, reaching ``zone_margin`` beyond the
   junction's road surface),
@@ -57,6 +58,8 @@ origin (the tractor's centre, a few metres ahead of the rear axle) stays within
 ``window_slack`` of that stretch (a curb farther from the origin than the LiDAR range is never
 seen), at a fraction of the cost. A truck that leaves the road through an open road end and
 drives farther than that from the route may miss far curbs in its LiDAR.
+``tests/tasks/network/test_network_windows.py`` checks the windows against every curb of the
+chain by brute force.
 
 Traffic
 -------
