@@ -19,7 +19,7 @@ from truckrl.config.fields import ConfigError
 from truckrl.env import TruckEnv
 from truckrl.tasks import EnvConfig, make_task
 from truckrl.tasks.network.bins import network_bins
-from truckrl.tasks.network.task import project, route_errors, route_state
+from truckrl.tasks.network.task import project, route_errors, route_info, route_state
 
 #: Small pools: every env here draws few episodes.
 POOL = 16
@@ -165,7 +165,7 @@ def test_start_and_goal_are_feasible_by_a_numpy_oracle(sampled):
     reach = scene.start_tries * scene.start_step
     n, J = state.shape[0], task.max_junctions
     lanes_per_block = s["tr_lanes"].shape[1] // (2 * J + 1)
-    near_target = tried = 0
+    near_target = tried = passed = 0
     for i in range(n):
         lanes = s["tr_lanes"][i][s["tr_lane_len"][i] > 0]
         block_of = np.flatnonzero(s["tr_lane_len"][i] > 0) // lanes_per_block
@@ -182,6 +182,14 @@ def test_start_and_goal_are_feasible_by_a_numpy_oracle(sampled):
             # on its link, or on the arm of the junction after it (outside the junction's disc)
             assert set(block_of[on]) & {s["level_blocks"][i, v], s["level_blocks"][i, v] + 1}
             assert s["level_blocks"][i, v] >= 2 * (J - j) and s["level_blocks"][i, v] % 2 == 0
+            # past the junction after its link: on that junction's lane, farther along the
+            # route than the junction's centre (the point of the route nearest to it)
+            jb = s["level_blocks"][i, v] + 1
+            arc = route_arc(start[:2], s["route_points"][i])
+            past = jb < 2 * J + 1 and jb in set(block_of[on])
+            past = past and arc > route_arc(s["tr_zone_centre"][i, jb], s["route_points"][i])
+            assert bool(s["level_past"][i, v]) == past, (i, v)
+            passed += past
             assert gap >= scene.min_goal_gap - 0.5, (i, v, gap)
             if distance == 0.0 or np.allclose(start, option, atol=1e-4):  # the option
                 assert np.allclose(start, option, atol=1e-4), (i, v)
@@ -211,6 +219,7 @@ def test_start_and_goal_are_feasible_by_a_numpy_oracle(sampled):
             hit = overlapping_pairs(both, np.ones(both.shape[:2], dtype=bool))
             assert not hit[0, 0].any(), (i, pose)
     assert tried > n and near_target > 0.5 * tried  # most levels' starts at their distance
+    assert 0 < passed < tried  # starts past a junction and starts before one, both checked
 
 
 def test_route_progress_by_hand():
@@ -391,6 +400,28 @@ def test_curriculum_starts_near_the_goal_then_routes_through_more_junctions():
     assert st["tr_active"].any()
     assert (st["route", "route_length"] > 100.0).all()
     env.close()
+
+
+def test_route_info_skips_the_junction_a_start_is_past():
+    """A chain straight, crossing (a left turn), straight, roundabout (a right turn), straight,
+    by hand: from block 0 both junctions count; a start past the crossing (on its exit arm)
+    counts only the roundabout, its type and its turn."""
+    state = {
+        "block_type": torch.tensor([[0, 2, 0, 4, 0]] * 2),
+        "junction_turn": torch.tensor([[0.0, 1.2, 0.0, -1.2, 0.0]] * 2),
+        "tr_active": torch.zeros(2, 1, dtype=torch.bool),
+        "tr_lanes": torch.zeros(2, 10, 3, 2),
+        "tr_lane_len": torch.ones(2, 10),
+        "goal_s": torch.tensor([100.0, 100.0]),
+        "route_s": torch.tensor([0.0, 0.0]),
+    }
+    info = route_info(state, torch.tensor([0, 0]), torch.tensor([False, True]))
+    assert info["junctions"].tolist() == [2.0, 1.0] and info["blocks"].tolist() == [5.0, 4.0]
+    assert info["has_crossing"].tolist() == [1.0, 0.0]
+    assert info["has_roundabout"].tolist() == [1.0, 1.0]
+    assert info["turns_left"].tolist() == [1.0, 0.0] and info["turns_right"].tolist() == [1.0, 1.0]
+    before = route_info(state, torch.tensor([2, 2]))  # from the middle link: the roundabout only
+    assert before["junctions"].tolist() == [1.0, 1.0] and before["turns_left"].tolist() == [0, 0]
 
 
 def test_bins_by_hand():

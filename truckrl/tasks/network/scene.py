@@ -276,6 +276,7 @@ class Chain:
     start_options: Tensor  # [n, J + 1, 3] start pose on link L_i (only those in use checked)
     level_starts: Tensor  # [n, V, 3] the start of each curriculum level (level_start)
     level_blocks: Tensor  # [n, V] long: the block each level's start lies on
+    level_past: Tensor  # [n, V] bool: the start lies on the exit arm of the junction after it
     goal: Tensor  # [n, 3]
     feasible: Tensor  # [n] bool
 
@@ -744,6 +745,13 @@ def _one_round(
     first = torch.tensor([2 * (J - j) for j, _ in levels], device=dev)
     inside = (torch.searchsorted(block_s.contiguous(), level_s, right=True) - 1).clamp(0, 2 * J)
     level_blocks = torch.maximum(inside - inside % 2, first)
+    # a start in a junction's piece lies outside its disc, so on its entry arm or past its
+    # manoeuvre on the exit arm: past where its arc length exceeds that of the piece's point
+    # nearest the disc's centre (inside the disc: between the arms)
+    K, count = block_s.shape[1] - 1, dense.shape[1] // (block_s.shape[1] - 1)
+    near = (dense.view(n, K, count, 2) - zones[0].unsqueeze(2)).norm(dim=-1).argmin(-1)
+    s_centre = cum.view(n, K, count).gather(2, near.unsqueeze(-1)).squeeze(-1)  # [n, K]
+    level_past = (inside % 2 == 1) & (level_s > s_centre.gather(1, inside))
     # traffic: the start options in use, each level's start and the goal reserved
     mid = 0.5 * (front - rear)
     sel = torch.cat((poses[:, checked], torch.stack([v[1] for v in found.values()], 1)), 1)
@@ -764,6 +772,7 @@ def _one_round(
         start_options=poses[:, : J + 1],
         level_starts=level_starts,
         level_blocks=level_blocks,
+        level_past=level_past,
         goal=poses[:, J + 1],
         feasible=feasible,
     )

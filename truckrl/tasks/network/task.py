@@ -195,6 +195,7 @@ class NetworkTask(PoseGoal, Task):
         state["start_options"] = ch.start_options
         state["level_starts"] = ch.level_starts
         state["level_blocks"] = ch.level_blocks
+        state["level_past"] = ch.level_past
         state["keep_draw"] = ch.keep_draw
         state = self.complete_state(state)
         info = route_info(state, torch.zeros(m, dtype=torch.long, device=device))
@@ -256,7 +257,7 @@ class NetworkTask(PoseGoal, Task):
         state.update(self.errors(state))
         for k, v in route_state(state).items():
             state[k] = v
-        info = route_info(state, first_block)
+        info = route_info(state, first_block, state["level_past"][rows, level])
         info["level"] = level.float()
         for k, v in info.items():
             state[INFO_STATE_KEY, k] = v
@@ -397,17 +398,24 @@ def route_errors(s: Mapping[str, Any]) -> dict[str, Tensor]:
     }
 
 
-def route_info(state: Mapping[str, Any], first_block: Tensor) -> dict[str, Tensor]:
+def route_info(
+    state: Mapping[str, Any], first_block: Tensor, past: Tensor | None = None
+) -> dict[str, Tensor]:
     """The episodes' metadata (:data:`~truckrl.tasks.network.scene.INFO_KEYS` but ``level`` and
-    ``feasible``) for routes from block ``first_block [N]`` (long) to the chain's end."""
+    ``feasible``) for routes from block ``first_block [N]`` (long) to the chain's end; where
+    ``past [N]`` (bool) the start lies on the exit arm of the junction after ``first_block``,
+    whose manoeuvre is behind it: that junction, its type and its turn are not counted."""
     types = state["block_type"]
     n, K = types.shape
-    on = (torch.arange(K, device=types.device) >= first_block.unsqueeze(-1)) & (types >= 0)
-    info = {"blocks": on.sum(-1).float(), "junctions": (on.sum(-1) // 2).float()}
+    k = torch.arange(K, device=types.device)
+    on = (k >= first_block.unsqueeze(-1)) & (types >= 0)
+    if past is not None:
+        on = on & ~(past.unsqueeze(-1) & (k == first_block.unsqueeze(-1) + 1))
+    joint = on & (k % 2 == 1)
+    info = {"blocks": on.sum(-1).float(), "junctions": joint.sum(-1).float()}
     for t, name in enumerate(BLOCK_NAMES):
         info[f"has_{name}"] = ((types == t) & on).any(-1).float()
     turn = state["junction_turn"]
-    joint = on & (torch.arange(K, device=types.device) % 2 == 1)
     info["turns_straight"] = (joint & (turn.abs() < STRAIGHT_TURN)).sum(-1).float()
     info["turns_left"] = (joint & (turn >= STRAIGHT_TURN)).sum(-1).float()
     info["turns_right"] = (joint & (turn <= -STRAIGHT_TURN)).sum(-1).float()
