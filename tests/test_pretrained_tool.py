@@ -178,7 +178,7 @@ def test_a_tiny_build_writes_the_policy_and_its_card(tmp_path, capsys):
         command,
         "truckrl train experiment=pretrained_intersection seed=0 "
         f"total_frames={2 * TINY_BATCH} env.max_steps=20",
-        f"threads=1 hydra.run.dir={run_dir}\ntruckrl train resume={run_dir} threads=1 max_minutes=null",
+        "threads=1 hydra.run.dir=RUN\ntruckrl train resume=RUN threads=1 max_minutes=null",
         f"| commit | `{facts['commit']}` (",
         f"| frames | {2 * TINY_BATCH} |",
         "| torch threads | 1 |",
@@ -192,6 +192,7 @@ def test_a_tiny_build_writes_the_policy_and_its_card(tmp_path, capsys):
     ):
         assert text in card, text
     assert "${" not in card and "<!--" not in card
+    assert f"hydra.run.dir={run_dir}" not in card and f"resume={run_dir}" not in card
     assert call(*args[:-1]) == 2  # the run dir holds a checkpoint now: refused, nothing trained
     assert "already holds a checkpoint" in capsys.readouterr().err
     assert call(*args[:-1], "seed=1", "resume=true") == 2  # another seed's run: refused

@@ -293,7 +293,7 @@ def resumed_config(
     out = {**saved, **{k: current[k] for k in SESSION_KEYS if k in current}}
     for path in given:
         *parents, leaf = path.split(".")
-        if path.split(".")[0] not in keep:
+        if (parents or [leaf])[0] not in keep:
             continue  # logged above where it differs
         src, dst = current, out
         for name in parents:

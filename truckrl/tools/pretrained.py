@@ -276,7 +276,8 @@ def write_card(path: Path, facts: dict) -> str:
         if dirty
         else "a clean work tree",
         command=facts["command"],
-        train_command=facts["train_command"],
+        # the run dir is the building machine's path: the card names it RUN (the JSON keeps it)
+        train_command=facts["train_command"].replace(_quote(facts.get("run_dir") or "RUN"), "RUN"),
         frames=f"{facts['frames']:,}",
         minutes=f"{facts['wall_time_s'] / 60.0:.1f}",
         machine=facts["machine"],
