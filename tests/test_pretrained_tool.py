@@ -172,13 +172,14 @@ def test_a_tiny_build_writes_the_policy_and_its_card(tmp_path, capsys):
         assert sum(b["count"] for name, b in bins.items() if name.startswith("route ")) == 6
     assert facts["tolerance"] == pytest.approx([tolerance[0], tolerance[1]])
     card = out.with_suffix(".md").read_text()
-    command = "truckrl tools pretrained " + " ".join(args)
+    command = "truckrl tools pretrained " + " ".join(args[:-1])  # the build, not its resume
     for text in (
         "# Shipped policy: intersection",
         command,
         "truckrl train experiment=pretrained_intersection seed=0 "
         f"total_frames={2 * TINY_BATCH} env.max_steps=20",
         "threads=1 hydra.run.dir=RUN\ntruckrl train resume=RUN threads=1 max_minutes=null",
+        "stopped once and continued by the same command with `resume=true`:",
         f"| commit | `{facts['commit']}` (",
         f"| frames | {2 * TINY_BATCH} |",
         "| torch threads | 1 |",
@@ -193,6 +194,7 @@ def test_a_tiny_build_writes_the_policy_and_its_card(tmp_path, capsys):
         assert text in card, text
     assert "${" not in card and "<!--" not in card
     assert f"hydra.run.dir={run_dir}" not in card and f"resume={run_dir}" not in card
+    assert "resume=true\n" not in card  # the build command is shown without it
     assert call(*args[:-1]) == 2  # the run dir holds a checkpoint now: refused, nothing trained
     assert "already holds a checkpoint" in capsys.readouterr().err
     assert call(*args[:-1], "seed=1", "resume=true") == 2  # another seed's run: refused

@@ -276,6 +276,9 @@ def write_card(path: Path, facts: dict) -> str:
         if dirty
         else "a clean work tree",
         command=facts["command"],
+        runs=" in one run, stopped once and continued by the same command with `resume=true`"
+        if facts.get("resumed")
+        else " in one run",
         # the run dir is the building machine's path: the card names it RUN (the JSON keeps it)
         train_command=facts["train_command"].replace(_quote(facts.get("run_dir") or "RUN"), "RUN"),
         frames=f"{facts['frames']:,}",
@@ -345,6 +348,8 @@ def run(cfg: PretrainedConfig, argv: list[str], overrides: list[str]) -> dict:
 
     threads = cfg.threads or torch.get_num_threads()
     command = shlex.join(["truckrl", "tools", "pretrained", *argv])
+    # the card names the build command; a resume is that command plus resume=true
+    build = shlex.join(["truckrl", "tools", "pretrained", *(a for a in argv if a != "resume=true")])
     train = train_command(head, threads, run_dir)
     ran = [train]
     if cfg.resume:  # the run's own config and frame budget, whatever time the stop was about
@@ -382,7 +387,8 @@ def run(cfg: PretrainedConfig, argv: list[str], overrides: list[str]) -> dict:
         "task": task,
         "source": recorded,
         "commit": commit_of(recorded) or "unknown (not a git checkout)",
-        "command": command,
+        "command": build,
+        "resumed": bool(cfg.resume),
         "train_command": "\n".join(shlex.join(c) for c in ran),
         "run_dir": str(run_dir),
         "checkpoint": cfg.checkpoint,
