@@ -172,7 +172,8 @@ def test_a_tiny_build_writes_the_policy_and_its_card(tmp_path, capsys):
         assert sum(b["count"] for name, b in bins.items() if name.startswith("route ")) == 6
     assert facts["tolerance"] == pytest.approx([tolerance[0], tolerance[1]])
     card = out.with_suffix(".md").read_text()
-    command = "truckrl tools pretrained " + " ".join(args[:-1])  # the build, not its resume
+    # the build, not its resume, and the run dir named RUN
+    command = "truckrl tools pretrained " + " ".join(args[:-1]).replace(str(run_dir), "RUN")
     for text in (
         "# Shipped policy: intersection",
         command,
@@ -199,6 +200,24 @@ def test_a_tiny_build_writes_the_policy_and_its_card(tmp_path, capsys):
     assert "already holds a checkpoint" in capsys.readouterr().err
     assert call(*args[:-1], "seed=1", "resume=true") == 2  # another seed's run: refused
     assert "has seed = 0, this command 1" in capsys.readouterr().err
+    # the finished run scored again into another file: nothing trains, its history stands
+    again = tmp_path / "again" / "pretrained.pt"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(pretrained, "train_child", lambda command: pytest.fail(f"trained: {command}"))
+        assert call(*(a for a in args if not a.startswith("out=")), f"out={again}") == 0
+    assert (
+        f"{run_dir} is at its frame budget ({2 * TINY_BATCH:,} frames)" in capsys.readouterr().out
+    )
+    assert load_checkpoint(again)["counters"]["frames"] == 2 * TINY_BATCH
+    assert "stopped once and continued by the same command" in again.with_suffix(".md").read_text()
+    # a run that finished in one session (its earlier scoring says so): one training command
+    facts["resumed"] = False
+    (run_dir / "pretrained.json").write_text(json.dumps(facts))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(pretrained, "train_child", lambda command: pytest.fail(f"trained: {command}"))
+        assert call(*(a for a in args if not a.startswith("out=")), f"out={again}") == 0
+    card = again.with_suffix(".md").read_text()
+    assert "a time limit) in one run:" in card and "truckrl train resume=" not in card
 
 
 def test_the_card_says_dirty(tmp_path):

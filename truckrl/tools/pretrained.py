@@ -24,7 +24,9 @@ tiny frame budget); the card then shows them in both commands. Bad input, a dirt
 dir that already holds a checkpoint print one line and exit with code 2 before any training.
 A stopped build (Ctrl-C, a lost machine) goes on with the same command plus ``run_dir=RUN
 resume=true``: ``truckrl train resume=RUN`` continues the run to its frame budget, then the
-scoring and the card follow; the card shows both training commands.
+scoring and the card follow; the card shows both training commands. ``resume=true`` on a run
+already at its frame budget trains nothing: it scores the run and writes the card again (into
+another ``out=``, say).
 """
 
 from __future__ import annotations
@@ -275,7 +277,9 @@ def write_card(path: Path, facts: dict) -> str:
         clean="uncommitted changes in the work tree: built with allow_dirty=true"
         if dirty
         else "a clean work tree",
-        command=facts["command"],
+        command=facts["command"].replace(
+            f"run_dir={_quote(facts.get('run_dir') or 'RUN')}", "run_dir=RUN"
+        ),
         runs=" in one run, stopped once and continued by the same command with `resume=true`"
         if facts.get("resumed")
         else " in one run",
@@ -350,13 +354,27 @@ def run(cfg: PretrainedConfig, argv: list[str], overrides: list[str]) -> dict:
     command = shlex.join(["truckrl", "tools", "pretrained", *argv])
     # the card names the build command; a resume is that command plus resume=true
     build = shlex.join(["truckrl", "tools", "pretrained", *(a for a in argv if a != "resume=true")])
-    train = train_command(head, threads, run_dir)
-    ran = [train]
-    if cfg.resume:  # the run's own config and frame budget, whatever time the stop was about
-        resume = [f"resume={_quote(str(run_dir))}", f"threads={threads}", "max_minutes=null"]
-        ran.append(["truckrl", "train", *resume])
-    print(f"{command}\ntraining: {shlex.join(ran[-1])}", flush=True)
-    code = train_child(ran[-1])
+    ran = [train_command(head, threads, run_dir)]
+    # the run's own config and frame budget, whatever time the stop was about
+    resume = ["truckrl", "train", f"resume={_quote(str(run_dir))}", f"threads={threads}",
+              "max_minutes=null"]  # fmt: skip
+    todo: list[str] | None = ran[0]  # the command this call trains with (None: nothing left)
+    resumed = False
+    if cfg.resume:
+        before = load_training_state(last)["counters"]["frames"]
+        if tc.total_frames is None or before < tc.total_frames:
+            todo, resumed = resume, True
+        else:  # a finished run scored again: what its earlier scoring recorded stands
+            todo, earlier = None, run_dir / "pretrained.json"
+            resumed = earlier.is_file() and bool(json.loads(earlier.read_text()).get("resumed"))
+        ran += [resume] if resumed else []
+    if todo is None:
+        print(f"{command}\n{run_dir} is at its frame budget ({before:,} frames): scoring it",
+              flush=True)  # fmt: skip
+        code = 0
+    else:
+        print(f"{command}\ntraining: {shlex.join(todo)}", flush=True)
+        code = train_child(todo)
     ckpt = run_dir / CHECKPOINT_DIR / (BEST_NAME if cfg.checkpoint == "best" else LAST_NAME)
     if code != 0 or not ckpt.is_file():
         raise ConfigError(
@@ -388,7 +406,7 @@ def run(cfg: PretrainedConfig, argv: list[str], overrides: list[str]) -> dict:
         "source": recorded,
         "commit": commit_of(recorded) or "unknown (not a git checkout)",
         "command": build,
-        "resumed": bool(cfg.resume),
+        "resumed": bool(resumed),
         "train_command": "\n".join(shlex.join(c) for c in ran),
         "run_dir": str(run_dir),
         "checkpoint": cfg.checkpoint,
