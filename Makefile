@@ -43,7 +43,8 @@ scenes: $(STAMP)
 	$(BIN)/truckrl tools scenes $(ARGS)
 
 # A shipped policy rebuilt from a clean commit by its preset, stopped by frames, with its card:
-# make pretrained TASK=intersection|dock|uturn (truckrl tools pretrained --help).
+# make pretrained TASK=intersection|dock|uturn (truckrl tools pretrained --help); the shipped
+# dock file is the run's best.pt: make pretrained TASK=dock ARGS=checkpoint=best (its card).
 pretrained: $(STAMP)
 	$(BIN)/truckrl tools pretrained task=$(TASK) $(ARGS)
 
