@@ -44,7 +44,7 @@ scenes: $(STAMP)
 
 # A shipped policy rebuilt from a clean commit by its preset, stopped by frames, with its card:
 # make pretrained TASK=intersection|dock|uturn (truckrl tools pretrained --help); the shipped
-# dock file is the run's best.pt: make pretrained TASK=dock ARGS=checkpoint=best (its card).
+# dock and uturn files are their runs' best.pt: make pretrained TASK=dock ARGS=checkpoint=best.
 pretrained: $(STAMP)
 	$(BIN)/truckrl tools pretrained task=$(TASK) $(ARGS)
 
