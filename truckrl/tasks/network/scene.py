@@ -449,6 +449,10 @@ def chunk_pieces(points: int, chunks: int) -> int:
     return max(1, -(-(points - 1) // chunks))
 
 
+#: Rows per block of :func:`route_windows`'s curb test.
+WINDOW_ROWS = 32
+
+
 def route_windows(
     points: Tensor,
     cum: Tensor,
@@ -482,25 +486,33 @@ def route_windows(
     last = (first + G).clamp_max(R - 1)
     mid = 0.5 * (points[:, first] + points[:, last])  # [n, chunks, 2]
     half = 0.5 * (cum[:, last] - cum[:, first])
-    # the valid curbs first, in slot order (padding is never near): the test below runs over
-    # the batch's largest curb count instead of every slot
+    # the valid curbs first, in slot order (padding is never near): the test below runs, for
+    # each block of rows, over the block's largest curb count instead of every slot
     order = torch.sort((~mask).to(torch.uint8), dim=-1, stable=True).indices
-    V = max(1, int(mask.sum(-1).max()))  # a scene generator's host read, never a step's
-    order = order[:, :V]
-    seg = segments.gather(1, order.unsqueeze(-1).expand(n, V, 4))
-    x0, y0, x1, y1 = (v.unsqueeze(1) for v in seg.unbind(-1))  # [n, 1, V]
-    px, py = mid[..., :1], mid[..., 1:]
-    dx, dy = x1 - x0, y1 - y0
-    t = (((px - x0) * dx + (py - y0) * dy) / (dx * dx + dy * dy).clamp_min(1e-12)).clamp(0, 1)
-    near = torch.hypot(px - x0 - t * dx, py - y0 - t * dy) <= reach + half.unsqueeze(-1)
-    near = near & mask.gather(1, order).unsqueeze(1)  # [n, chunks, V]
-    count = near.sum(-1)
+    count_valid = mask.sum(-1)
     size = min(size, E)  # a window of every curb at most
-    # each near curb's slot to its rank among the near ones (in slot order), the rest and any
-    # beyond the window's size to a spare column that is dropped
-    rank = torch.where(near, near.cumsum(-1) - 1, size).clamp_max(size)
     window = torch.zeros(n, chunks, size + 1, dtype=torch.long, device=dev)
-    window.scatter_(2, rank, order.unsqueeze(1).expand(n, chunks, V))
+    count = torch.empty(n, chunks, dtype=torch.long, device=dev)
+    # blocks of rows: each block's [rows, chunks, V] pair tables stay in cache
+    starts = range(0, n, WINDOW_ROWS)
+    widths = torch.stack([c.max() for c in count_valid.split(WINDOW_ROWS)]).clamp_min(1)
+    for r0, V in zip(starts, widths.tolist(), strict=True):  # a scene generator's host read
+        rows = slice(r0, r0 + WINDOW_ROWS)
+        slots = order[rows, :V]
+        b = slots.shape[0]
+        seg = segments[rows].gather(1, slots.unsqueeze(-1).expand(b, V, 4))
+        x0, y0, x1, y1 = (v.unsqueeze(1) for v in seg.unbind(-1))  # [b, 1, V]
+        ex, ey = mid[rows, :, :1] - x0, mid[rows, :, 1:] - y0
+        dx, dy = x1 - x0, y1 - y0
+        t = ((ex * dx + ey * dy) / (dx * dx + dy * dy).clamp_min(1e-12)).clamp(0, 1)
+        near = torch.hypot(ex - t * dx, ey - t * dy) <= reach + half[rows].unsqueeze(-1)
+        near &= mask[rows].gather(1, slots).unsqueeze(1)  # [b, chunks, V]
+        ranks = near.cumsum(-1)
+        count[rows] = ranks[..., -1]
+        # each near curb's slot to its rank among the near ones (in slot order), the rest and
+        # any beyond the window's size to a spare column that is dropped
+        rank = torch.where(near, ranks - 1, size).clamp_max(size)
+        window[rows].scatter_(2, rank, slots.unsqueeze(1).expand(b, chunks, V))
     valid = torch.arange(size, device=dev) < count.unsqueeze(-1)
     return window[..., :size], valid, (count > size).any(-1)
 
