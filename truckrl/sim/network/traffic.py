@@ -263,7 +263,8 @@ def lane_tables(net: Network) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
     )
     usable = net.lane_mask & ~ring
     end = torch.gather(lanes, 2, (pieces + 1).view(*pieces.shape, 1, 1).expand(-1, -1, 1, 2))
-    near = (end - lanes[:, :, 0].unsqueeze(1)).norm(dim=-1) < 1e-2  # [n, P (end), P (start)]
+    gap = end - lanes[:, :, 0].unsqueeze(1)  # [n, P (end), P (start), 2]
+    near = torch.hypot(gap[..., 0], gap[..., 1]) < 1e-2
     near = near & usable.unsqueeze(1) & usable.unsqueeze(2)
     near = near & ~torch.eye(lanes.shape[1], dtype=torch.bool, device=lanes.device)
     successor = torch.where(near.any(-1), near.to(torch.uint8).argmax(-1), -1)
@@ -295,6 +296,21 @@ def place_vehicles(
         active=active if active is not None else torch.ones_like(lane, dtype=torch.bool),
         waiting=torch.zeros_like(lane, dtype=torch.bool),
     )  # fmt: skip
+
+
+def _lane_slots(lanes: Tensor, cum: Tensor, pieces: Tensor, s: Tensor) -> Tensor:
+    """Points ``[n, P, J, 2]`` [m] at arc lengths ``s [n, P, J]`` along each of the lanes
+    ``lanes [n, P, Q, 2]`` (arc lengths ``cum [n, P, Q]``, last non-empty piece ``pieces [n,
+    P]``): :func:`lane_points` of every lane at ``J`` arc lengths, the same operations on the
+    same values, without gathering a lane's arc lengths once per point."""
+    n, P, J = s.shape
+    idx = torch.searchsorted(cum, s.contiguous(), right=True) - 1
+    idx = torch.minimum(idx.clamp_min(0), pieces.unsqueeze(-1))
+    pts = idx.unsqueeze(-1).expand(n, P, J, 2)
+    p0, p1 = lanes.gather(2, pts), lanes.gather(2, pts + 1)
+    c0, c1 = cum.gather(2, idx), cum.gather(2, idx + 1)
+    t = ((s - c0) / (c1 - c0).clamp_min(1e-9)).unsqueeze(-1)
+    return p0 + t * (p1 - p0)
 
 
 def spawn_traffic(
@@ -336,12 +352,15 @@ def spawn_traffic(
         v0=slot_s.reshape(n, -1), length=slot_s.reshape(n, -1), width=slot_s.reshape(n, -1),
         truck=ok.reshape(n, -1), active=ok.reshape(n, -1), waiting=~ok.reshape(n, -1),
     )  # fmt: skip
-    xy, _ = lane_points(probe, probe.lane, probe.s)  # [n, P J, 2]
+    xy = _lane_slots(net.lanes, cum, pieces, slot_s).reshape(n, P * J, 2)
     ok = ok.reshape(n, -1)
-    gap = (xy.unsqueeze(2) - centre.unsqueeze(1)).norm(dim=-1) - radius.unsqueeze(1)
+    x, y = xy[..., 0].unsqueeze(2), xy[..., 1].unsqueeze(2)  # [n, P J, 1]
+    gap = torch.hypot(x - centre[..., 0].unsqueeze(1), y - centre[..., 1].unsqueeze(1))
+    gap = gap - radius.unsqueeze(1)
     ok = ok & ~(zmask.unsqueeze(1) & (gap < 0.5 * pitch)).any(-1)
     if reserved is not None and reserved.shape[1] > 0:
-        d = (xy.unsqueeze(2) - reserved[:, None, :, :2]).norm(dim=-1) - reserved[:, None, :, 2]
+        d = torch.hypot(x - reserved[:, None, :, 0], y - reserved[:, None, :, 1])
+        d = d - reserved[:, None, :, 2]
         ok = ok & ~(d < 0.5 * pitch).any(-1)
     total = (lane_len * usable).sum(1)
     density = cfg.density[0] + (cfg.density[1] - cfg.density[0]) * rand(n)
