@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from tests.conftest import TINY_TRAIN, run_cli
 from truckrl.evaluation.rollout import evaluate_policy
@@ -241,15 +242,26 @@ def test_bad_input_is_one_line_before_any_work(synthetic, args, says, capsys, tm
 # ------------------------------------------------------------------------------- a real sweep
 @pytest.mark.e2e
 def test_a_real_two_seed_sweep_dir(tmp_path):
-    """``truckrl train -m seed=0,1`` (tiny), then ``truckrl tools aggregate`` of the sweep dir:
-    its jobs are found, the shared command line is the config, and the runs never reached
-    difficulty 6."""
+    """``truckrl train -m seed=0,1`` (tiny): each job trains its budget with its own seed and
+    records its video; then ``truckrl tools aggregate`` of the sweep dir: its jobs are found, the
+    shared command line is the config, and the runs never reached difficulty 6."""
     sweep = tmp_path / "sweep"
+    videos = ["log.video_interval=1", "log.video_steps=5"]  # the last override wins over TINY's
     proc = run_cli(
         "train", "-m", "seed=0,1", *TINY_TRAIN, "total_frames=512", "env.max_steps=20",
-        f"hydra.sweep.dir={sweep}",
+        *videos, f"hydra.sweep.dir={sweep}",
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
+    for job in ("0", "1"):
+        state = load_checkpoint(sweep / job)
+        assert state["counters"]["frames"] == 512
+        assert yaml.safe_load(state["config"])["seed"] == int(job)
+        video = sweep / job / "videos" / "iter_000001.mp4"
+        assert video.is_file() and video.stat().st_size > 0
+    # held-out checks by default: every 5 min, so none in a run this short
+    events = EventAccumulator(str(sweep / "0" / "tb"))
+    events.Reload()
+    assert not [t for t in events.Tags()["scalars"] if t.startswith("eval/")]
     out = tmp_path / "seeds.json"
     # in this process (the training above needs its own): one interpreter start fewer
     assert aggregate(f"runs={sweep}", "episodes=4", f"out={out}", "x=minutes",

@@ -13,8 +13,15 @@ from truckrl.bench.cleanrl_ppo import gae
 
 
 @pytest.mark.e2e
-def test_tiny_run_every_trainer_advances_and_is_scored(tmp_path, capsys):
-    """Each trainer in its own subprocess for 0.1 s (at least one update), 2 held-out episodes."""
+def test_tiny_run_every_trainer_advances_and_is_scored(tmp_path, capsys, monkeypatch):
+    """Each trainer for 0.1 s (at least one update), 2 held-out episodes: truckrl's in its own
+    subprocess as the harness runs it, SB3's and CleanRL's by :func:`bench.run_one` in this
+    process (the same function their subprocess calls; one interpreter start each fewer)."""
+    spawn = bench._spawn
+    monkeypatch.setattr(
+        bench, "_spawn", lambda job, t: spawn(job, t) if job["trainer"] == "truckrl" else
+        bench.run_one(job)
+    )  # fmt: skip
     out = tmp_path / "trainers.json"
     opts = bench.parse(["minutes=0.002", "seeds=[3]", "envs=8", "episodes=2", f"out={out}"])
     result = bench.run(opts)
