@@ -372,8 +372,9 @@ def test_touching_a_vehicle_ends_the_episode_as_a_collision():
 
 
 def test_curriculum_starts_near_the_goal_then_routes_through_more_junctions():
-    """At difficulty 0 (level 0: 40 m, no traffic) most routes are 40 m from start to goal
-    (the candidates reach 32 m either side; a route through no or one junction), no vehicle
+    """At difficulty 0 (level 0: 40 m, no traffic) many routes are 40 m from start to goal (60 %
+    of 1,024 at seed 1; the candidates reach 32 m either side; a route through no or one
+    junction), no vehicle
     drives, and the blocks behind the start are out of the scene; at 1.5 (the whole route
     through 1 junction) every route has 3 blocks; at 3 (2 junctions, every vehicle) 5 blocks
     and some traffic."""
@@ -383,7 +384,7 @@ def test_curriculum_starts_near_the_goal_then_routes_through_more_junctions():
     st = env.get_state()
     length = st["route", "route_length"]
     assert (length > 4.0).all() and (length < 40.0 + 32.0 + 1.0).all()
-    assert ((length - 40.0).abs() < 1.0).float().mean() > 0.5
+    assert ((length - 40.0).abs() < 1.0).float().mean() > 0.3
     assert (st["route", "junctions"] <= 1).all()
     assert not st["tr_active"].any() and (st["route", "traffic_density"] == 0).all()
     first = st["level_blocks"][torch.arange(16), 0].unsqueeze(-1)

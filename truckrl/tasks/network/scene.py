@@ -42,9 +42,10 @@ route through ``j`` junctions. A chain is kept when every one of these poses
 * and the goal lies ``min_goal_gap`` or more along the route beyond every start;
 
 and the chain has all ``K`` blocks, and no stretch of its route has more than ``window_size``
-curbs in reach (below, "Curb windows"). Other chains are redrawn, up to ``rounds`` times; a
-chain still failing is kept and marked (``info["feasible"] = 0``): 3 of 4,096 episodes drawn at
-the defaults (seed 0). The rule thins some shapes out: among the kept chains curves are 23 % of
+curbs in reach (below, "Curb windows"). Other chains are redrawn, up to ``rounds`` times (a
+round with fewer open episodes than ``round_chains`` draws several chains for each, the first
+kept wins: the same distribution in fewer rounds); a chain still failing is kept and marked
+(``info["feasible"] = 0``): none of 4,096 episodes drawn at the defaults (seed 0). The rule thins some shapes out: among the kept chains curves are 23 % of
 the links (not a third: a straight truck on a tight curve touches its curb) and roundabouts 29 %
 of the junctions (two near each other fill a window).
 
@@ -245,6 +246,10 @@ class NetworkSceneConfig:
     copies: int = param(
         1, lo=1, hi=64, unit="-", doc="chains drawn per episode and round (the first kept wins)"
     )
+    round_chains: int = param(
+        32, lo=1, hi=100_000, unit="-",
+        doc="chains a round draws at least: more copies per episode when few are open",
+    )  # fmt: skip
     window_chunks: int = param(
         32, lo=1, hi=4096, unit="-", doc="stretches of the route with a curb window of their own"
     )
@@ -657,15 +662,17 @@ def generate_episodes(
         rows = todo.nonzero().squeeze(-1)  # a scene generator's host read, never a step's
         if rows.numel() == 0:
             break
-        # each open episode draws `copies` chains (copy j of row i at j m + i): fixed costs per
-        # draw dominate, so fewer, larger draws
-        many = rows.repeat(cfg.copies)
+        # each open episode draws `copies` chains (copy j of row i at j m + i), more when few
+        # are open: a round's fixed cost is that of a few dozen chains, so the last few open
+        # episodes are settled in one round instead of one round per redraw
+        copies = max(cfg.copies, -(-cfg.round_chains // rows.numel()))
+        many = rows.repeat(copies)
         sub = {k: v[many] for k, v in params.items()}
         fresh = _one_round(
             cfg, network, traffic, route, levels, sub, front[many], rear[many], generator, dev,
             reach,
         )  # fmt: skip
-        ok, pick = first_valid(fresh.feasible.view(cfg.copies, rows.numel()))
+        ok, pick = first_valid(fresh.feasible.view(copies, rows.numel()))
         fresh = _take(fresh, pick)
         if chain is None:
             chain = fresh  # round 0 holds every row
