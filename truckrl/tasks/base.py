@@ -292,6 +292,16 @@ class Task:
             "difficulty": difficulty[:, None].clone(),
         }
 
+    def sensed(self, s: dict[str, Any]) -> dict[str, Any]:
+        """``s`` as the collision test and the LiDAR read it (its ``segments`` and ``mask``).
+
+        The default returns ``s``. A task whose scene holds more than the state's segments (moving
+        vehicles) adds it here; :meth:`transition` calls it once per step and hands the result
+        to :meth:`outcome` and :meth:`observe`, so such a task's overrides of those must accept
+        an ``s`` that is already sensed.
+        """
+        return s
+
     def scan(self, s: dict[str, Any]) -> Tensor:
         """LiDAR ranges ``[N, R]`` [m] from the tractor centre."""
         lidar, pose = self.cfg.lidar, s["pose"]
@@ -329,7 +339,8 @@ class Task:
         action = torch.where(finite[:, None], action, torch.zeros_like(action)).clamp(-1.0, 1.0)
         new = self.step(s, action)
         after = {**s, **new}
-        flags = self.outcome(after, difficulty)
+        seen = self.sensed(after)
+        flags = self.outcome(seen, difficulty)
         terms = self.reward_terms(s, after, flags)
         reward = torch.stack(list(terms.values())).sum(0)
         out = {k: v[:, None] for k, v in terms.items()}
@@ -343,7 +354,7 @@ class Task:
             terminated=flags["terminated"][:, None],
             truncated=flags["truncated"][:, None],
         )
-        out.update(self.observe(after, difficulty))
+        out.update(self.observe(seen, difficulty))
         return new, out
 
     def initial_state(

@@ -89,6 +89,9 @@ ROUTE_KEYS: tuple[str, ...] = (
     "route_heading",
     "route_chunk",
 )
+#: Key that marks a state dict whose ``segments`` and ``mask`` already hold the scene the
+#: collision test and the LiDAR read (:meth:`NetworkTask.sensed`); never a state entry.
+SENSED = "sensed"
 #: Curb window state keys: the chain's curbs ``net_segments [N, E, 4]`` and ``net_mask [N, E]``
 #: (the scene's, in their slots) and each route stretch's window ``window [N, C, W]`` (curb
 #: slots) and ``window_valid [N, C, W]``; the step's LiDAR and collision read the window of the
@@ -280,9 +283,13 @@ class NetworkTask(PoseGoal, Task):
         new.update(route_state({**s, "pose": new["pose"]}))
         return new
 
-    def with_traffic(self, s: Mapping[str, Any]) -> dict[str, Any]:
+    def sensed(self, s: dict[str, Any]) -> dict[str, Any]:
         """``s`` with ``segments`` and ``mask`` the curbs of the truck's route stretch (its
-        window) and the vehicles' outlines."""
+        window) and the vehicles' outlines (:data:`SENSED` marks it; a marked ``s`` is returned
+        as it is, so the step assembles this scene once for the collision test and the
+        LiDAR)."""
+        if SENSED in s:
+            return s
         seg, mask = traffic_segments(traffic_of(s))
         window, valid = s["window"], s["window_valid"]
         n, _, w = window.shape
@@ -294,15 +301,16 @@ class NetworkTask(PoseGoal, Task):
             **s,
             "segments": torch.cat((curbs, seg), 1),
             "mask": torch.cat((curb_mask, mask), 1),
+            SENSED: True,
         }
 
     def outcome(self, s: dict[str, Any], difficulty: Tensor) -> dict[str, Tensor]:
         """The shared outcome on the scene with the vehicles in it (touching one collides)."""
-        return super().outcome(self.with_traffic(s), difficulty)
+        return super().outcome(self.sensed(s), difficulty)
 
     def scan(self, s: dict[str, Any]) -> Tensor:
         """The shared LiDAR on the scene with the vehicles in it."""
-        return super().scan(self.with_traffic(s))
+        return super().scan(self.sensed(s))
 
     def reward_terms(
         self, before: dict[str, Any], after: dict[str, Any], flags: dict[str, Tensor]
