@@ -45,7 +45,7 @@ from truckrl.sim.network.config import (
     T_JUNCTION,
     NetworkConfig,
 )
-from truckrl.sim.roads import uniform
+from truckrl.sim.roads import first_valid, uniform
 
 
 @dataclass
@@ -72,6 +72,11 @@ class Network:
 
     def __len__(self) -> int:
         return self.segments.shape[0]
+
+
+#: Candidates a redraw round of :func:`grow` tests at least: where fewer networks are open, each
+#: takes its next several candidates at once (the same first fitting one, in fewer rounds).
+ROUND_CANDIDATES = 32
 
 
 def rects_overlap(
@@ -220,45 +225,54 @@ def grow(
         kind, params, entry, exit_ = draw(k, R * n)
         # candidates are generated and tested round by round, each round only for the networks
         # whose earlier candidates all overlapped: the same first fitting candidate as testing
-        # all R at once (round 0's where none fits), at the cost of about one round
+        # all R at once (round 0's where none fits), at the cost of about one round. Where few
+        # networks are open, a round takes their next several candidates at once (at least
+        # ROUND_CANDIDATES in all): a round's fixed cost is that of dozens of candidates
         first = torch.zeros(n, dtype=torch.long, device=dev)
         ok = torch.zeros(n, dtype=torch.bool, device=dev)
         rows = every
-        for j in range(R):
+        j = 0
+        while j < R:
             if j > 0:
                 rows = (~ok).nonzero().squeeze(-1)  # a scene generator's host read
                 if rows.numel() == 0:
                     break
-            c = j * n + rows
-            block_j = generate(cfg, types, kind[c], width[rows], params[c])
-            angle_j, shift_j = placement(block_j, entry[c], pose[rows])
-            exit_j = exit_[c]
+            m = rows.numel()
+            c = 1 if j == 0 else min(R - j, -(-ROUND_CANDIDATES // m))
+            # candidate j + i of open network rows[r] in row i m + r
+            net = rows.repeat(c)
+            cand = (j + torch.arange(c, device=dev).repeat_interleave(m)) * n + net
+            block_j = generate(cfg, types, kind[cand], width[net], params[cand])
+            angle_j, shift_j = placement(block_j, entry[cand], pose[net])
+            exit_j = exit_[cand]
             if exit_j.is_floating_point():
                 others = block_j.socket_mask & (
-                    torch.arange(S, device=dev).unsqueeze(0) != entry[c].unsqueeze(-1)
+                    torch.arange(S, device=dev).unsqueeze(0) != entry[cand].unsqueeze(-1)
                 )
                 exit_j = pick_socket(others, exit_j)
             # against its parent: shortened by socket_slack at the ends, so the joint is no
             # overlap; against older blocks: padded by clearance / 2 all round
             fp, F0 = moved_footprint(block_j, angle_j, shift_j), rects.shape[1] - F
             hit = rects_overlap(
-                fp, rects[rows, F0:], block_j.rect_mask, rect_mask[rows, F0:],
+                fp, rects[net, F0:], block_j.rect_mask, rect_mask[net, F0:],
                 0.5 * cfg.clearance, cfg.socket_slack,
             ) | rects_overlap(
-                fp, rects[rows, :F0], block_j.rect_mask, rect_mask[rows, :F0],
+                fp, rects[net, :F0], block_j.rect_mask, rect_mask[net, :F0],
                 0.5 * cfg.clearance, -0.5 * cfg.clearance,
             )  # fmt: skip
             if j == 0:  # round 0 fills every network (kept where no round fits)
                 block, angle, shift, exits = block_j, angle_j, shift_j, exit_j
                 ok = ~hit
+                j = 1
                 continue
-            fit = ~hit
-            won = rows[fit]
+            fit, src = first_valid(~hit.view(c, m))  # the first fitting of each open network
+            won, src = rows[fit], src[fit]
             for f in fields(Block):
-                getattr(block, f.name)[won] = getattr(block_j, f.name)[fit]
-            angle[won], shift[won], exits[won] = angle_j[fit], shift_j[fit], exit_j[fit]
-            first[won] = j
+                getattr(block, f.name)[won] = getattr(block_j, f.name)[src]
+            angle[won], shift[won], exits[won] = angle_j[src], shift_j[src], exit_j[src]
+            first[won] = j + src // m
             ok[won] = True
+            j += c
         row = first * n + every
         wanted = alive & (k < target)
         placed = wanted & ok
