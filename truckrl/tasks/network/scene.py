@@ -247,7 +247,7 @@ class NetworkSceneConfig:
         1, lo=1, hi=64, unit="-", doc="chains drawn per episode and round (the first kept wins)"
     )
     round_chains: int = param(
-        32, lo=1, hi=100_000, unit="-",
+        64, lo=1, hi=100_000, unit="-",
         doc="chains a round draws at least: more copies per episode when few are open",
     )  # fmt: skip
     window_chunks: int = param(
