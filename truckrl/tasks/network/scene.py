@@ -615,9 +615,13 @@ def level_start(
     inside = (s >= link_s.unsqueeze(-1)) & (s <= (goal_s - cfg.min_goal_gap).unsqueeze(-1))
     n, C = s.shape[0], len(steps)
     pick = torch.full((n,), C, dtype=torch.long, device=s.device)  # the option
-    # the first candidate on every row, then all the others at once on the rows where it
-    # failed: a row's later candidates are checked only where they can change its pick
-    for first, last in ((0, 1), (1, C)):
+    # the candidates in groups of doubling size (1, 2, 4, ...), each group only on the rows
+    # whose earlier candidates all failed: a row's later candidates are checked only where they
+    # can change its pick, and about half of the candidates pass
+    bounds = [0, 1]
+    while bounds[-1] < C:
+        bounds.append(min(C, 2 * bounds[-1] + 1))
+    for first, last in zip(bounds[:-1], bounds[1:], strict=True):
         at = rows[pick[rows] == C]  # a scene generator's host read, never a step's
         if at.numel() == 0 or first >= last:
             break
