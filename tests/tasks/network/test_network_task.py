@@ -371,6 +371,17 @@ def test_touching_a_vehicle_ends_the_episode_as_a_collision():
     assert not hit
 
 
+def test_curriculum_keeps_the_draws_feasibility_verdict(sampled):
+    """on_reset recomputes the route metadata for the level's start but keeps ``feasible``, the
+    draw's verdict on the chain: an episode marked infeasible stays marked at every level."""
+    task, state = sampled
+    state = state[:4].clone()
+    state["route", "feasible"] = torch.tensor([0.0, 1.0, 0.0, 1.0])
+    for d in (0.0, 3.0):
+        out = task.on_reset(state.clone(), torch.full((4,), d))
+        assert out["route", "feasible"].tolist() == [0.0, 1.0, 0.0, 1.0]
+
+
 def test_curriculum_starts_near_the_goal_then_routes_through_more_junctions():
     """At difficulty 0 (level 0: 40 m, no traffic) many routes are 40 m from start to goal (60 %
     of 1,024 at seed 1; the candidates reach 32 m either side; a route through no or one

@@ -262,6 +262,7 @@ class NetworkTask(PoseGoal, Task):
             state[k] = v
         info = route_info(state, first_block, state["level_past"][rows, level])
         info["level"] = level.float()
+        del info["feasible"]  # the draw's verdict on the chain, whatever the level
         for k, v in info.items():
             state[INFO_STATE_KEY, k] = v
         # fresh storage: the rows come as slices of the episode pool, whose storage offsets
