@@ -581,61 +581,74 @@ def level_start(
     cum: Tensor,
     link_s: Tensor,
     goal_s: Tensor,
-    distance: float,
+    distance: tuple[float, ...],
     params: dict[str, Tensor],
     curbs: Callable[[Tensor, Tensor], tuple[Tensor, Tensor]],
     zones: tuple[Tensor, Tensor, Tensor],
     rows: Tensor,
 ) -> tuple[Tensor, Tensor]:
-    """A curriculum level's start: ``(s [n], pose [n, 3])``, its arc length along the route
-    [m] and pose, searched on the chains ``rows`` (long; the others, to be redrawn, keep the
-    option).
+    """``V`` curriculum levels' starts: ``(s [n, V], pose [n, V, 3])``, their arc lengths
+    along the route [m] and poses, searched on the chains ``rows`` (long; the others, to be
+    redrawn, keep the option).
 
-    With ``distance`` 0, the start option of the level's first link (arc length ``link_s
-    [n]``). Else the first of the candidates ``t, t + h, t - h, t + 2 h, t - 2 h, ...`` (``h =
-    start_step``, ``start_tries`` each side; ``t = max(goal_s - distance, link_s)``) that lies
-    between ``link_s`` and ``min_goal_gap`` before the goal ``goal_s [n]`` and passes
-    :func:`pose_ok`, the link's start option where none does; so the start is as feasible as
-    the option: on the route's lane centre-line (``dense``, ``cum``: the route as built, on
-    lane vertices), clear of curbs and junction zones, ``distance`` or up to ``start_tries h``
-    either side of it before the goal (farther only on the fallback). ``curbs(rows [m], s [m])``
-    gives the curbs ``([m, W, 4], [m, W])`` a pose at arc length ``s`` of the chains ``rows``
-    may touch.
+    For a level with ``distance`` 0, the start option of the level's first link (arc length
+    ``link_s [n, V]``). Else the first of the candidates ``t, t + h, t - h, t + 2 h, t - 2 h,
+    ...`` (``h = start_step``, ``start_tries`` each side; ``t = max(goal_s - distance,
+    link_s)``) that lies between ``link_s`` and ``min_goal_gap`` before the goal ``goal_s [n]``
+    and passes :func:`pose_ok`, the link's start option where none does; so the start is as
+    feasible as the option: on the route's lane centre-line (``dense``, ``cum``: the route as
+    built, on lane vertices), clear of curbs and junction zones, ``distance`` or up to
+    ``start_tries h`` either side of it before the goal (farther only on the fallback).
+    ``curbs(rows [m], s [m])`` gives the curbs ``([m, W, 4], [m, W])`` a pose at arc length
+    ``s`` of the chains ``rows`` may touch. The levels are searched together: their candidates
+    share each :func:`pose_ok` call.
     """
-    xy, heading = point_at(dense, cum, link_s.unsqueeze(-1))
-    option = torch.cat((xy[:, 0], heading), -1)
-    if distance <= 0.0:
-        return link_s, option
-    target = torch.maximum(goal_s - distance, link_s)
+    n, dev = link_s.shape[0], cum.device
+    xy, heading = point_at(dense, cum, link_s)
+    out_s, out_pose = link_s.clone(), torch.cat((xy, heading.unsqueeze(-1)), -1)  # the options
+    search = [v for v, d in enumerate(distance) if d > 0.0]
+    if not search:
+        return out_s, out_pose
+    # the searched levels' (level, chain) pairs, level-major: pair v n + i
+    B = len(search)
+    d = torch.tensor([distance[v] for v in search], dtype=cum.dtype, device=dev)
+    link = link_s[:, search]  # [n, B]
+    target = torch.maximum(goal_s.unsqueeze(-1) - d, link)
     steps = [0] + [sign * k for k in range(1, cfg.start_tries + 1) for sign in (1, -1)]
-    offsets = cfg.start_step * torch.tensor(steps, dtype=cum.dtype, device=cum.device)
-    s = torch.cat((target.unsqueeze(-1) + offsets, link_s.unsqueeze(-1)), -1)  # [n, C + 1]
-    xy, heading = point_at(dense, cum, s)
-    poses = torch.cat((xy, heading.unsqueeze(-1)), -1)
-    inside = (s >= link_s.unsqueeze(-1)) & (s <= (goal_s - cfg.min_goal_gap).unsqueeze(-1))
-    n, C = s.shape[0], len(steps)
-    pick = torch.full((n,), C, dtype=torch.long, device=s.device)  # the option
-    # the candidates in groups of doubling size (1, 2, 4, ...), each group only on the rows
-    # whose earlier candidates all failed: a row's later candidates are checked only where they
+    offsets = cfg.start_step * torch.tensor(steps, dtype=cum.dtype, device=dev)
+    s = torch.cat((target.unsqueeze(-1) + offsets, link.unsqueeze(-1)), -1)  # [n, B, C + 1]
+    xy, heading = point_at(dense, cum, s.view(n, -1))
+    poses = torch.cat((xy, heading.unsqueeze(-1)), -1).view(n, B, -1, 3)
+    gap = (goal_s - cfg.min_goal_gap).view(n, 1, 1)
+    inside = (s >= link.unsqueeze(-1)) & (s <= gap)
+    s, poses, inside = (t.transpose(0, 1).flatten(0, 1) for t in (s, poses, inside))
+    C = len(steps)
+    pick = torch.full((B * n,), C, dtype=torch.long, device=dev)  # the option
+    pairs = (torch.arange(B, device=dev).unsqueeze(-1) * n + rows).flatten()
+    # the candidates in groups of doubling size (1, 2, 4, ...), each group only on the pairs
+    # whose earlier candidates all failed: a pair's later candidates are checked only where they
     # can change its pick, and about half of the candidates pass
     bounds = [0, 1]
     while bounds[-1] < C:
         bounds.append(min(C, 2 * bounds[-1] + 1))
     for first, last in zip(bounds[:-1], bounds[1:], strict=True):
-        at = rows[pick[rows] == C]  # a scene generator's host read, never a step's
+        at = pairs[pick[pairs] == C]  # a scene generator's host read, never a step's
         if at.numel() == 0 or first >= last:
             break
         k = last - first
-        rep = at.repeat_interleave(k)  # row-major: candidates of a row side by side
-        cand = torch.arange(first, last, device=s.device).repeat(at.numel())
-        sub = {key: v[rep] for key, v in params.items()}
-        zone = tuple(z[rep] for z in zones)
-        ok = inside[rep, cand] & pose_ok(poses[rep, cand], sub, *curbs(rep, s[rep, cand]), zone)
+        rep = at.repeat_interleave(k)  # pair-major: candidates of a pair side by side
+        cand = torch.arange(first, last, device=dev).repeat(at.numel())
+        chain = rep % n
+        sub = {key: v[chain] for key, v in params.items()}
+        zone = tuple(z[chain] for z in zones)
+        ok = inside[rep, cand] & pose_ok(poses[rep, cand], sub, *curbs(chain, s[rep, cand]), zone)
         ok = ok.view(-1, k)
         found = ok.any(-1)
         pick[at[found]] = first + ok.to(torch.uint8).argmax(-1)[found]
-    every = torch.arange(n, device=s.device)
-    return s[every, pick], poses[every, pick]
+    every = torch.arange(B * n, device=dev)
+    out_s[:, search] = s[every, pick].view(B, n).T
+    out_pose[:, search] = poses[every, pick].view(B, n, 3).transpose(0, 1)
+    return out_s, out_pose
 
 
 def generate_episodes(
@@ -755,12 +768,12 @@ def _one_round(
     for i in checked:
         feasible = feasible & pose_ok(poses[:, i], params, *curbs(every, s_pose[:, i]), zones)
     kept = feasible.nonzero().squeeze(-1)  # a scene generator's host read, never a step's
-    found: dict[tuple[int, float], tuple[Tensor, Tensor]] = {}
-    for j, distance in levels:
-        if (j, distance) not in found:
-            found[j, distance] = level_start(
-                cfg, dense, cum, s_start[:, J - j], s_goal, distance, params, curbs, zones, kept
-            )
+    keys = list(dict.fromkeys(levels))  # each distinct (junctions, distance) once, in order
+    link_s = torch.stack([s_start[:, J - j] for j, _ in keys], 1)
+    found_s, found_pose = level_start(
+        cfg, dense, cum, link_s, s_goal, tuple(d for _, d in keys), params, curbs, zones, kept
+    )
+    found = {key: (found_s[:, v], found_pose[:, v]) for v, key in enumerate(keys)}
     level_s = torch.stack([found[key][0] for key in levels], 1)  # [n, V]
     level_starts = torch.stack([found[key][1] for key in levels], 1)  # [n, V, 3]
     # the link each start lies on (an arc length in a junction's piece counts to the link
