@@ -764,9 +764,13 @@ def _one_round(
         chunk = window_chunk(s, total[rows, 0], R, cfg.window_chunks)
         return window_scene(net.segments, net.mask, window, valid, rows, chunk)
 
-    every = torch.arange(n, device=dev)
-    for i in checked:
-        feasible = feasible & pose_ok(poses[:, i], params, *curbs(every, s_pose[:, i]), zones)
+    # every checked pose of every chain in one call (pose-major: pose c of chain i at c n + i)
+    chain = torch.arange(n, device=dev).repeat(len(checked))
+    sub = {key: v[chain] for key, v in params.items()}
+    at = poses[:, checked].transpose(0, 1).flatten(0, 1)
+    s_at = s_pose[:, checked].T.flatten()
+    ok = pose_ok(at, sub, *curbs(chain, s_at), tuple(z[chain] for z in zones))
+    feasible = feasible & ok.view(len(checked), n).all(0)
     kept = feasible.nonzero().squeeze(-1)  # a scene generator's host read, never a step's
     keys = list(dict.fromkeys(levels))  # each distinct (junctions, distance) once, in order
     link_s = torch.stack([s_start[:, J - j] for j, _ in keys], 1)
