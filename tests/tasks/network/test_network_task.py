@@ -385,10 +385,9 @@ def test_curriculum_keeps_the_draws_feasibility_verdict(sampled):
 def test_curriculum_starts_near_the_goal_then_routes_through_more_junctions():
     """At difficulty 0 (level 0: 40 m, no traffic) many routes are 40 m from start to goal (60 %
     of 1,024 at seed 1; the candidates reach 32 m either side; a route through no or one
-    junction), no vehicle
-    drives, and the blocks behind the start are out of the scene; at 1.5 (the whole route
-    through 1 junction) every route has 3 blocks; at 3 (2 junctions, every vehicle) 5 blocks
-    and some traffic."""
+    junction), no vehicle drives, and the blocks behind the start are out of the scene; at 1.5
+    (the whole route through 1 junction) every route has 3 blocks; at 3 (2 junctions, every
+    vehicle) 5 blocks and some traffic."""
     env = network_env(n=16, seed=1)
     env.set_difficulty(0.0)
     env.reset()
