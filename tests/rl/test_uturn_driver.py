@@ -134,7 +134,9 @@ def test_setpoint_action_by_mode():
 def demo_setup():
     cfg = build(EnvConfig, {"task": {"name": "uturn"}, "max_steps": 1000}, "env")
     states = held_out_states(cfg, 8, 99991, difficulty=4.0)
-    settings = [GRID[i] for i in (265, 0)]
+    # GRID[152] turns scenes 0 and 3 of these 8, GRID[264] those and 2 and 7: a scene's first
+    # successful setting differs between scenes, so a wrong pairing or pick shows
+    settings = [GRID[i] for i in (152, 264)]
     samples, solved = driven_demos(cfg, states, 2.0, settings)
     return cfg, states, settings, samples, solved
 
