@@ -383,21 +383,21 @@ def test_curriculum_keeps_the_draws_feasibility_verdict(sampled):
 
 
 def test_curriculum_starts_near_the_goal_then_routes_through_more_junctions():
-    """At difficulty 0 (level 0: 40 m, no traffic) many routes are 40 m from start to goal (60 %
+    """At difficulty 0 (level 0: 40 m, no traffic) most routes are 40 m from start to goal (60 %
     of 1,024 at seed 1; the candidates reach 32 m either side; a route through no or one
     junction), no vehicle drives, and the blocks behind the start are out of the scene; at 1.5
     (the whole route through 1 junction) every route has 3 blocks; at 3 (2 junctions, every
     vehicle) 5 blocks and some traffic."""
-    env = network_env(n=16, seed=1)
+    env = network_env(n=64, seed=1)
     env.set_difficulty(0.0)
     env.reset()
     st = env.get_state()
     length = st["route", "route_length"]
     assert (length > 4.0).all() and (length < 40.0 + 32.0 + 1.0).all()
-    assert ((length - 40.0).abs() < 1.0).float().mean() > 0.3
+    assert ((length - 40.0).abs() < 1.0).float().mean() > 0.5
     assert (st["route", "junctions"] <= 1).all()
     assert not st["tr_active"].any() and (st["route", "traffic_density"] == 0).all()
-    first = st["level_blocks"][torch.arange(16), 0].unsqueeze(-1)
+    first = st["level_blocks"][torch.arange(64), 0].unsqueeze(-1)
     assert not (st["mask"] & (st["segment_block"] < first)).any()
     assert (st["mask"] & (st["segment_block"] == first)).any(-1).all()
     env.set_difficulty(1.5)
