@@ -21,7 +21,8 @@ Kinds of file, told apart by their keys:
   trainer: frames in the budget, frames/s, difficulty reached, held-out success at the fixed
   difficulty and at the one reached.
 * ``"kind": "quality"``: minutes to a good policy, one row per training run: minutes and frames
-  to difficulty 6, the best held-out check there, when the check first met the target
+  to difficulty 6 (``null`` where the run stopped below it, with ``difficulty_reached``), the
+  best held-out check there, when the check first met the target
   (``quality_reached``) or that it did not before the run stopped, and the final checkpoint's
   held-out success.
 * an evaluation (``truckrl eval``: ``success_rate`` and ``categories``): outcome rates and final
@@ -430,10 +431,14 @@ def quality_tables(doc: dict[str, Any]) -> dict[str, Table]:
             else f"not within {stop['minutes']:g} min"
         )
         final = r.get("final_heldout")
+        if r.get("minutes_to_difficulty_6") is None:  # the run stopped below difficulty 6
+            top = r.get("difficulty_reached")
+            to_6 = "not reached" + (f" (stopped at {top:g})" if top is not None else "")
+        else:
+            to_6 = f"{r['minutes_to_difficulty_6']:.1f} ({r['frames_to_difficulty_6'] / 1e6:.1f} M)"
         rows.append([
             str(r["seed"]), r.get("device", ""),
-            f"{r['minutes_to_difficulty_6']:.1f} ({r['frames_to_difficulty_6'] / 1e6:.1f} M)",
-            best_text, reached,
+            to_6, best_text, reached,
             f"{stop['minutes']:g} min, {stop['frames'] / 1e6:.1f} M frames ({stop['reason']})",
             f"{pct(final['success'])} of {final['episodes']:,} (seed {final['seed']})" if final else "",
         ])  # fmt: skip

@@ -66,6 +66,14 @@ def test_a_run_that_did_not_says_so_with_its_stop(render):
     assert rows[0][4] == "not within 60 min"
 
 
+def test_a_run_that_stopped_below_difficulty_6_names_where(render):
+    doc = record(None)
+    doc["runs"][0].update(minutes_to_difficulty_6=None, frames_to_difficulty_6=None,
+                          difficulty_reached=5.0, checks_at_6=[])  # fmt: skip
+    _, rows = render.quality_tables(doc)[""]
+    assert rows[0][2:5] == ["not reached (stopped at 5)", "none", "not within 60 min"]
+
+
 def test_the_record_is_told_from_the_other_kinds_and_gets_its_provenance(render):
     frag = render.fragments(record(None))[""]
     assert frag.splitlines()[0].startswith("| seed | device | minutes (frames) to difficulty 6 |")
