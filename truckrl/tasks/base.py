@@ -96,6 +96,8 @@ class Task:
         error_quantities: the errors to the goal it reports, in state and outputs.
         reward_keys: names of its reward terms, in summation order.
         reverse: whether its trucks may reverse (default False: forward only, the paper's).
+        episode_pool: the reset pool's refill size [episodes] where ``env.episode_pool`` is
+            unset (None); a task whose episodes cost more to draw one at a time sets more.
         category_dims: how evaluation splits its episodes by scene (:class:`CategoryDim` over
             the metadata its scenes record in ``state["route"]``); a task whose split needs more
             than independent dimensions overrides :meth:`category_bins` instead.
@@ -106,6 +108,7 @@ class Task:
     error_quantities: ClassVar[tuple[Quantity, ...]]
     reward_keys: ClassVar[tuple[str, ...]]
     reverse: ClassVar[bool] = False
+    episode_pool: ClassVar[int] = 256
     category_dims: ClassVar[tuple[CategoryDim, ...]] = ()
 
     @classmethod

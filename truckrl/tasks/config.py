@@ -109,12 +109,13 @@ class EnvConfig:
         False,
         doc="torch.compile the step and observation (a compile per process; pays off for big N)",
     )
-    episode_pool: int = param(
-        256,
+    episode_pool: int | None = param(
+        None,
         lo=1,
         hi=1_000_000,
         unit="episodes",
-        doc="episodes generated per refill of the reset pool (batched generation is cheaper)",
+        doc="episodes generated per refill of the reset pool (batched generation is cheaper; "
+        "null: the task's own, Task.episode_pool)",
     )
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     lidar: LidarConfig = field(default_factory=LidarConfig)
@@ -135,6 +136,10 @@ class EnvConfig:
             self.task = build(task_class(name).config_class, self.task, "env.task")
         elif not isinstance(self.task, TaskConfig):
             raise ConfigError(f"env.task must be a task config, got {self.task!r}")
+        if self.episode_pool is None:
+            from truckrl.tasks.registry import task_class
+
+            self.episode_pool = task_class(self.task.name).episode_pool
 
 
 def flat_overrides(tree: dict, prefix: str = "env") -> dict[str, Any]:

@@ -222,6 +222,19 @@ def test_start_and_goal_are_feasible_by_a_numpy_oracle(sampled):
     assert 0 < passed < tried  # starts past a junction and starts before one, both checked
 
 
+def test_the_reset_pool_refills_by_the_tasks_own_size_unless_one_is_set():
+    from truckrl.tasks.base import Task
+    from truckrl.tasks.network.task import NetworkTask
+
+    assert NetworkTask.episode_pool > Task.episode_pool
+    assert EnvConfig(task={"name": "network"}).episode_pool == NetworkTask.episode_pool
+    assert EnvConfig(task={"name": "intersection"}).episode_pool == Task.episode_pool
+    assert EnvConfig(task={"name": "network"}, episode_pool=8).episode_pool == 8
+    env = TruckEnv(num_envs=2, config={"task": {"name": "network"}, "max_steps": 60}, seed=0)
+    env.reset()
+    assert len(env._pool) == NetworkTask.episode_pool - 2
+
+
 def test_route_progress_by_hand():
     """An L-shaped route (0, 0) -> (10, 0) -> (10, 10), goal at its end: at (4, 1) the truck is
     4 m along it and 1 m off, 16 + 1 m to go; at (11, 6), 16 m along, 1 m off, 4 + 1 to go; the

@@ -135,6 +135,10 @@ class NetworkTask(PoseGoal, Task):
 
     name = "network"
     config_class = NetworkTaskConfig
+    #: a refill draws its chains, routes and traffic in one batch whose rounds of small tensor
+    #: ops are shared by all its episodes: the draw is the reset's largest cost, and a bigger
+    #: batch costs less per episode (docs/networks.md, "Speed")
+    episode_pool = 1024
     extra_state_keys = (*TRAFFIC_KEYS, *ROUTE_KEYS, *WINDOW_KEYS)
 
     @classmethod
