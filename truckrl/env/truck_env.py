@@ -182,11 +182,16 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
         return obs
 
     def _as_tensordict(self, leaves: Leaves, m: int) -> TensorDict:
-        """State leaves ``{leaf key: [m, ...]}`` as a (nested) TensorDict ``[m]``."""
-        td = TensorDict({}, batch_size=[m], device=self.device)
+        """State leaves ``{leaf key: [m, ...]}`` as a (nested) TensorDict ``[m]``, built from
+        nested dicts in one call (cheaper than a ``set`` per leaf)."""
+        root: dict[str, Any] = {}
         for key, value in leaves.items():
-            td.set(key, value)
-        return td
+            *outer, last = key if isinstance(key, tuple) else (key,)
+            node = root
+            for k in outer:
+                node = node.setdefault(k, {})
+            node[last] = value
+        return TensorDict(root, batch_size=[m], device=self.device)
 
     def _flat_rows(self, leaves: Any) -> dict[str, Any]:
         """State leaves (``{leaf key: [m, ...]}`` or a state TensorDict) as the flat state the
@@ -227,11 +232,14 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
             self._state.get(key).index_put_((idx,), value)
         self._scene.update(self._state["segments"], self._state["mask"], idx)
         if obs is None:
-            # fresh storage: rows taken from the episode pool are slices whose storage offsets
-            # change from reset to reset, and the compiled observation of them guards on those
-            # offsets (it would compile again for each)
-            fresh = {k: v.clone() for k, v in fresh.items()}
-            return self._observe_rows(self._flat_rows(fresh), difficulty)
+            # fresh storage for what the observation reads: rows taken from the episode pool are
+            # slices whose storage offsets change from reset to reset, and the compiled
+            # observation of them guards on those offsets (it would compile again for each)
+            flat = self._flat_rows(fresh)
+            flat = {k: v.clone() for k, v in flat.items() if k != "params"} | {
+                "params": {k: v.clone() for k, v in flat["params"].items()}
+            }
+            return self._observe_rows(flat, difficulty)
         return {**obs, "difficulty": difficulty[:, None]}
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
@@ -253,7 +261,9 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
                 self._state, self._restore = self._restore, None
             else:
                 fresh = self._as_tensordict(self._pool.take(n)[0], n)
-                self._state = self.task.on_reset(fresh, self._difficulty)
+                # fresh storage, not slices of the pool: the compiled step guards on the storage
+                # offsets of the state it reads (as the observation in _restart does)
+                self._state = self.task.on_reset(fresh, self._difficulty).clone()
             self._scene.update(self._state["segments"], self._state["mask"])
             cols = dict(self._observe_fn(self._flat_state(), self._difficulty))
         else:

@@ -235,6 +235,17 @@ def test_the_reset_pool_refills_by_the_tasks_own_size_unless_one_is_set():
     assert len(env._pool) == NetworkTask.episode_pool - 2
 
 
+def test_a_reset_state_holds_storage_of_its_own_not_the_pools():
+    """The compiled step guards on its inputs' storage offsets: a state made of slices of the
+    episode pool would compile again whenever a full reset took rows at another offset."""
+    env = network_env(n=4)
+    env.reset()
+    held = {v.untyped_storage().data_ptr() for v in env._pool._episodes.values()}
+    state = env._state.items(include_nested=True, leaves_only=True)
+    shared = [k for k, v in state if v.untyped_storage().data_ptr() in held]
+    assert not shared, f"state leaves on the pool's storage: {shared}"
+
+
 def test_route_progress_by_hand():
     """An L-shaped route (0, 0) -> (10, 0) -> (10, 10), goal at its end: at (4, 1) the truck is
     4 m along it and 1 m off, 16 + 1 m to go; at (11, 6), 16 m along, 1 m off, 4 + 1 to go; the

@@ -269,10 +269,7 @@ class NetworkTask(PoseGoal, Task):
         del info["feasible"]  # the draw's verdict on the chain, whatever the level
         for k, v in info.items():
             state[INFO_STATE_KEY, k] = v
-        # fresh storage: the rows come as slices of the episode pool, whose storage offsets
-        # change from reset to reset, and a compiled observation of them (env.compile) guards
-        # on those offsets and would compile again for each
-        return state.clone()
+        return state
 
     # ------------------------------------------------------------------ step
     def step(self, s: dict[str, Any], action: Tensor) -> dict[str, Tensor]:
