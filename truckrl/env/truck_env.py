@@ -68,6 +68,11 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
         self._difficulty = torch.full(
             (num_envs,), self.config.tolerance.difficulty, device=self.device
         )
+        #: the difficulty as a float (all trucks share it), and the state keys left out of the
+        #: step while every episode of the batch started at a difficulty where the task can go
+        #: without them (Task.idle_keys); kept on the host, so the step reads no device value
+        self._host_difficulty = float(self.config.tolerance.difficulty)
+        self._idle: tuple[str, ...] = ()
         self._state_keys = ("pose", "goal", "segments", "mask", "step_count", *CONTROL_KEYS)
         self._state_keys += (*self.task.error_keys, *self.task.extra_state_keys)
         self._param_keys = (*PARAM_KEYS, *(REVERSE_KEYS if self.task.reverse else ()))
@@ -123,6 +128,10 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
         """
         d = check_range("difficulty", difficulty, 0.0, MAX_DIFFICULTY)
         self._difficulty.fill_(d)
+        self._host_difficulty = d
+        # the episodes started from now on start at d: keep only what is idle there too
+        idle = self.task.idle_keys(d)
+        self._idle = tuple(k for k in self._idle if k in idle)
 
     @property
     def difficulty(self) -> float:
@@ -196,7 +205,7 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
     def _flat_rows(self, leaves: Any) -> dict[str, Any]:
         """State leaves (``{leaf key: [m, ...]}`` or a state TensorDict) as the flat state the
         task functions read: plain tensors, ``params`` as a dict."""
-        flat: dict[str, Any] = {k: leaves[k] for k in self._state_keys}
+        flat: dict[str, Any] = {k: leaves[k] for k in self._state_keys if k not in self._idle}
         flat["params"] = {k: leaves["params", k] for k in self._param_keys}
         return flat
 
@@ -259,7 +268,9 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
         if self._restore is not None or self._state is None or reset is None:
             if self._restore is not None:
                 self._state, self._restore = self._restore, None
+                self._idle = ()  # a given state may hold anything
             else:
+                self._idle = self.task.idle_keys(self._host_difficulty)
                 fresh = self._as_tensordict(self._pool.take(n)[0], n)
                 # fresh storage, not slices of the pool: the compiled step guards on the storage
                 # offsets of the state it reads (as the observation in _restart does)

@@ -182,6 +182,17 @@ class Task:
         """
         return state
 
+    def idle_keys(self, difficulty: float) -> tuple[str, ...]:
+        """State keys that the step of an episode started at ``difficulty`` (the env's own
+        float) can go without, because what they hold stays still there; the default: none.
+
+        :class:`~truckrl.env.TruckEnv` leaves them out of the state it steps and observes while
+        every episode of its batch started at such a difficulty (a host-side rule: no device
+        value is read), so a task that names some must read them only where they are present,
+        and without them must step and observe exactly as with them.
+        """
+        return ()
+
     def errors(self, s: Mapping[str, Any]) -> dict[str, Tensor]:
         """Errors to the goal ``{key: [N]}`` for :attr:`error_quantities`.
 

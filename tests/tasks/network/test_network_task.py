@@ -246,6 +246,39 @@ def test_a_reset_state_holds_storage_of_its_own_not_the_pools():
     assert not shared, f"state leaves on the pool's storage: {shared}"
 
 
+def test_leaving_idle_traffic_out_of_the_step_changes_nothing():
+    """Below the first curriculum level with vehicles the env steps without the traffic's keys
+    (NetworkTask.idle_keys): the outputs and the state are bit for bit those of an env that
+    steps the traffic all along, also after the difficulty rises to a level with vehicles,
+    from which on the traffic is stepped again."""
+    from truckrl.tasks.network.task import TRAFFIC_KEYS
+
+    def rollout(busy: bool):
+        config = {"task": {"name": "network"}, "episode_pool": 64, "max_steps": 8}
+        env = TruckEnv(num_envs=16, config=config, seed=0)  # every truck restarts after the rise
+        if busy:
+            env.task.idle_keys = lambda difficulty: ()
+        env.set_difficulty(0.0)
+        td = env.reset()
+        gen, outs, idle = torch.Generator().manual_seed(1), [], []
+        for t in range(30):
+            if t == 10:
+                env.set_difficulty(3.0)
+            action = torch.rand(16, 2, generator=gen) * 2.0 - 1.0
+            step, td = env.step_and_maybe_reset(td.set("action", action))
+            outs.append(step["next"].clone())
+            idle.append(set(env._idle))
+        return outs, idle, env.get_state()
+
+    idle_outs, idle, idle_state = rollout(busy=False)
+    busy_outs, _, busy_state = rollout(busy=True)
+    for a, b in zip(idle_outs, busy_outs, strict=True):
+        assert (a == b).all()
+    assert (idle_state == busy_state).all()
+    assert busy_state["tr_active"].any()  # vehicles took part after the rise
+    assert idle[0] == set(TRAFFIC_KEYS) and not idle[-1]
+
+
 def test_route_progress_by_hand():
     """An L-shaped route (0, 0) -> (10, 0) -> (10, 10), goal at its end: at (4, 1) the truck is
     4 m along it and 1 m off, 16 + 1 m to go; at (11, 6), 16 m along, 1 m off, 4 + 1 to go; the

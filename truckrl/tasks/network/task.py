@@ -35,6 +35,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -238,6 +239,16 @@ class NetworkTask(PoseGoal, Task):
                 state[k] = v
         return state
 
+    def idle_keys(self, difficulty: float) -> tuple[str, ...]:
+        """The traffic's keys where the curriculum level of ``difficulty`` keeps no vehicle
+        (:meth:`on_reset` then deactivates every one, and a step would leave them as they
+        are); else none. The level as :meth:`on_reset` finds it, in float32."""
+        cur = self.cfg.task.curriculum
+        d = np.float32(difficulty)
+        level = sum(bool(d >= np.float32(t)) for t in cur.difficulty) - 1
+        none = cur.traffic[level] == 0.0 or self.cfg.task.traffic.max_vehicles == 0
+        return TRAFFIC_KEYS if none else ()
+
     def on_reset(self, state: TensorDict, difficulty: Tensor) -> TensorDict:
         """The curriculum level of each episode's difficulty (module doc); a state without the
         curriculum's inputs (built by hand) is returned unchanged."""
@@ -276,6 +287,9 @@ class NetworkTask(PoseGoal, Task):
         """The shared step, then the traffic (with the truck's new boxes as obstacles) and the
         truck's projection on the route."""
         new = super().step(s, action)
+        if TRAFFIC_KEYS[0] not in s:  # no vehicle anywhere: left out (idle_keys)
+            new.update(route_state({**s, "pose": new["pose"]}))
+            return new
         tractor, trailer, _ = truck_boxes(new["pose"], s["params"])
         traffic = step_traffic(
             traffic_of(s), self.cfg.task.traffic, self.cfg.dt, ego_boxes(tractor, trailer)
@@ -292,19 +306,16 @@ class NetworkTask(PoseGoal, Task):
         LiDAR)."""
         if SENSED in s:
             return s
-        seg, mask = traffic_segments(traffic_of(s))
         window, valid = s["window"], s["window_valid"]
         n, _, w = window.shape
         at = s["route_chunk"].view(n, 1, 1).expand(n, 1, w)
         idx = window.gather(1, at).squeeze(1)  # [n, w] curb slots
         curbs = s["net_segments"].gather(1, idx.unsqueeze(-1).expand(n, w, 4))
         curb_mask = s["net_mask"].gather(1, idx) & valid.gather(1, at).squeeze(1)
-        return {
-            **s,
-            "segments": torch.cat((curbs, seg), 1),
-            "mask": torch.cat((curb_mask, mask), 1),
-            SENSED: True,
-        }
+        if TRAFFIC_KEYS[0] in s:  # else no vehicle anywhere (idle_keys): the curbs alone
+            seg, mask = traffic_segments(traffic_of(s))
+            curbs, curb_mask = torch.cat((curbs, seg), 1), torch.cat((curb_mask, mask), 1)
+        return {**s, "segments": curbs, "mask": curb_mask, SENSED: True}
 
     def outcome(self, s: dict[str, Any], difficulty: Tensor) -> dict[str, Tensor]:
         """The shared outcome on the scene with the vehicles in it (touching one collides)."""
