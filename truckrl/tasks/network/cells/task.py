@@ -66,6 +66,7 @@ from torch import Tensor
 
 from truckrl.config.fields import param, validate
 from truckrl.sim.vehicle import truck_extents
+from truckrl.tasks.base import Task
 from truckrl.tasks.network.scene import point_at
 from truckrl.tasks.network.task import NetworkTask, NetworkTaskConfig, project
 
@@ -170,6 +171,9 @@ class CellsTask(NetworkTask):
     name = CELLS_TASK
     config_class = CellsTaskConfig
     extra_state_keys = (*NetworkTask.extra_state_keys, *SUBGOAL_KEYS)
+    #: the common refill size, not the network task's: a refill's size decides which episodes a
+    #: seed draws, and the cells measurement (docs/chaining.md) keeps drawing the same ones
+    episode_pool = Task.episode_pool
 
     def __init__(self, cfg: EnvConfig) -> None:
         super().__init__(cfg)
