@@ -50,6 +50,8 @@ def _in_process(capsys, *argv: str) -> tuple[int, str, str]:
         (["gym=true", "repeats=0"], "repeats = 0"),
         (["tasks=[intersection,nope]"], "tasks[1] = 'nope' is not one of"),
         (["tasks=[intersection]", "task=dock"], "tasks = ['intersection']: not with task"),
+        (["difficulty=31"], "difficulty = 31"),
+        (["difficulty=3", "scaling=true"], "difficulty = 3: scaling, peers and gym"),
         (["--steps", "2"], "'--steps'"),
         (["no_such_key=1"], "unknown field(s) ['no_such_key']"),
     ],
@@ -168,3 +170,21 @@ def test_benchmark_names_are_checked_and_listed(capsys):
     assert main(["--help"]) == 0
     out = capsys.readouterr().out
     assert all(f"  {name} " in out for name in ("env", "lidar", "train"))
+
+
+def test_difficulty_is_where_the_envs_step(tmp_path, capsys):
+    """difficulty=3: the envs draw and step episodes of difficulty 3 (the network task's
+    traffic is stepped there, and left out of the step at the default 0)."""
+    from truckrl.bench import env as bench_env
+
+    args = bench_env.parse(["tasks=[network]", "envs=[4]", "difficulty=3", f"out={tmp_path}"])
+    env = bench_env._make_env(4, False, "cpu", 0, task="network", difficulty=args.difficulty)
+    env.reset()
+    assert env.difficulty == 3.0 and env._idle == ()
+    idle = bench_env._make_env(4, False, "cpu", 0, task="network")
+    idle.reset()
+    assert idle.difficulty == 0.0 and idle._idle  # the traffic's keys, left out at 0
+    bench_env.run(bench_env.parse(["quick=true", "tasks=[network]", "envs=[4]", "steps=2",
+                                   "warmup=1", "repeats=1", "difficulty=3", f"out={tmp_path}"]))
+    record = json.loads(next(tmp_path.glob("env-*.json")).read_text())
+    assert record["args"]["difficulty"] == 3.0

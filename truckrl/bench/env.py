@@ -49,6 +49,7 @@ from truckrl.bench.report import (
 )
 from truckrl.config.fields import param, validate
 from truckrl.env import TruckEnv
+from truckrl.tasks import MAX_DIFFICULTY
 
 TARGET_STEPS_PER_S = 100_000  # the target, 16 beams, on a CPU
 TARGET_RATIO_VS_PAPER = 30.0  # best config >= 30x the paper layout in the same run
@@ -122,6 +123,11 @@ class EnvBenchConfig:
         (), min_len=0,
         doc="task folders timed back to back at each batched N, alternating (instead of task)",
     )  # fmt: skip
+    difficulty: float = param(
+        0.0, lo=0.0, hi=MAX_DIFFICULTY,
+        doc="curriculum difficulty the envs step at (where a task's scenes grow with it: "
+        "network has traffic from 1 on)",
+    )  # fmt: skip
     out: str = param(str(DEFAULT_OUT_DIR), doc="JSON record: a folder, or a .json path")
 
     def __post_init__(self) -> None:
@@ -158,6 +164,8 @@ def parse(argv: list[str]) -> EnvBenchConfig:
             fail(str(e).replace("env.task.name", "task", 1))
         if args.scaling or args.peers or args.gym:
             fail(f"task = {args.task!r}: scaling, peers and gym measure the default task only")
+    if args.difficulty and (args.scaling or args.peers or args.gym):
+        fail(f"difficulty = {args.difficulty:g}: scaling, peers and gym step at difficulty 0")
     if args.tasks:
         from truckrl.config.fields import ConfigError
         from truckrl.tasks import task_class
@@ -183,6 +191,7 @@ def _make_env(
     overrides: dict | None = None,
     task: str | None = None,
     fresh_graphs: bool = True,
+    difficulty: float = 0.0,
 ) -> TruckEnv:
     if compile and fresh_graphs:
         # Every env of a new size or config compiles new graphs of the same functions (step,
@@ -192,7 +201,9 @@ def _make_env(
     config = {"compile": compile, **(overrides or {})}
     if task is not None:
         config["task"] = {"name": task}
-    return TruckEnv(num_envs=n, device=device, config=config, seed=seed)
+    env = TruckEnv(num_envs=n, device=device, config=config, seed=seed)
+    env.set_difficulty(difficulty)  # before the first reset, which draws the episodes
+    return env
 
 
 def steps_per_second(env: EnvBase, steps: int, warmup: int) -> tuple[float, float]:
@@ -317,7 +328,10 @@ def _parallel_steps_per_second(
 ) -> tuple[float, float]:
     """Env-steps/s and warm-up s of a ``ParallelEnv`` of ``workers`` spawned processes, each a
     CPU ``TruckEnv`` of ``per_worker`` trucks; the processes are closed after."""
-    make = functools.partial(_make_env, per_worker, compiled, "cpu", args.seed, task=args.task)
+    make = functools.partial(
+        _make_env, per_worker, compiled, "cpu", args.seed, task=args.task,
+        difficulty=args.difficulty,
+    )  # fmt: skip
     penv = ParallelEnv(workers, make, mp_start_method="spawn")
     try:
         penv.set_seed(args.seed)
@@ -341,7 +355,9 @@ def _throughput_rows(args: EnvBenchConfig, compiled: bool, rows: list[dict]) -> 
         if args.tasks:
             _task_rows(args, compiled, n, rows)
             continue
-        env = _make_env(n, compiled, args.device, args.seed, task=args.task)
+        env = _make_env(
+            n, compiled, args.device, args.seed, task=args.task, difficulty=args.difficulty
+        )
         if not args.gym:
             sps, warm = steps_per_second(env, args.steps, args.warmup)
             _record(rows, "batched", 1, n, compiled, sps, warm)
@@ -375,7 +391,10 @@ def _task_rows(args: EnvBenchConfig, compiled: bool, n: int, rows: list[dict]) -
     # one graph reset for the whole set: a reset between them would drop the graphs of the
     # envs made before it, and each would compile again inside the timed loop of a later round
     envs = [
-        _make_env(n, compiled, args.device, args.seed, task=t, fresh_graphs=i == 0)
+        _make_env(
+            n, compiled, args.device, args.seed, task=t, fresh_graphs=i == 0,
+            difficulty=args.difficulty,
+        )  # fmt: skip
         for i, t in enumerate(args.tasks)
     ]
     runs: list[list[tuple[float, float]]] = [[] for _ in envs]
@@ -439,7 +458,9 @@ def _collector_rows(args: EnvBenchConfig, compiled: bool) -> list[dict]:
 
     rows = []
     for n in args.parallel_envs:
-        env = _make_env(n, compiled, args.device, args.seed, task=args.task)
+        env = _make_env(
+            n, compiled, args.device, args.seed, task=args.task, difficulty=args.difficulty
+        )
         features = env.task.num_features
         actor = make_actor_critic(ModelConfig(), features, env.config.lidar.num_beams).actor
         frames = n * 32
