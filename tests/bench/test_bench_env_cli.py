@@ -184,7 +184,7 @@ def test_difficulty_is_where_the_envs_step(tmp_path, capsys):
     idle = bench_env._make_env(4, False, "cpu", 0, task="network")
     idle.reset()
     assert idle.difficulty == 0.0 and idle._idle  # the traffic's keys, left out at 0
-    bench_env.run(bench_env.parse(["quick=true", "tasks=[network]", "envs=[4]", "steps=2",
-                                   "warmup=1", "repeats=1", "difficulty=3", f"out={tmp_path}"]))
+    argv = ["quick=true", "tasks=[network]", "envs=[4]", "steps=2", "warmup=1", "repeats=1"]
+    bench_env.run(bench_env.parse([*argv, "difficulty=3", f"out={tmp_path}"]))
     record = json.loads(next(tmp_path.glob("env-*.json")).read_text())
     assert record["args"]["difficulty"] == 3.0

@@ -392,9 +392,14 @@ def _task_rows(args: EnvBenchConfig, compiled: bool, n: int, rows: list[dict]) -
     # envs made before it, and each would compile again inside the timed loop of a later round
     envs = [
         _make_env(
-            n, compiled, args.device, args.seed, task=t, fresh_graphs=i == 0,
+            n,
+            compiled,
+            args.device,
+            args.seed,
+            task=t,
+            fresh_graphs=i == 0,
             difficulty=args.difficulty,
-        )  # fmt: skip
+        )
         for i, t in enumerate(args.tasks)
     ]
     runs: list[list[tuple[float, float]]] = [[] for _ in envs]
