@@ -247,6 +247,24 @@ def test_at_an_open_road_end_a_vehicle_leaves_and_reappears_on_its_home_lane():
     assert float(back.s[0, 0]) == pytest.approx(2.0) and float(back.v[0, 0]) == 0.0
 
 
+def test_a_vehicle_does_not_reappear_near_the_truck():
+    """A truck parked in the other lane within ``appear_clearance`` of the home lane's start
+    keeps the vehicle off the road; one farther away does not."""
+    w, cfg = 9.0, TrafficConfig()
+    net = straight(60.0, w)
+    tr = place_vehicles(net, cfg, *(t.unsqueeze(0) for t in two(0, 50.0, 4.0, 1.8, 10.0)))
+
+    def parked(x: float) -> torch.Tensor:  # a 16 m box in lane 1 (along -x, left of centre)
+        return torch.tensor([[[x, 0.25 * w, -1.0, 0.0, 8.0, 1.25]]])
+
+    near, far = rollout(net, cfg, tr, 40, parked(20.0)), rollout(net, cfg, tr, 40, parked(50.0))
+    assert any(bool(t.waiting[0, 0]) for t in near), "it never left"
+    assert bool(near[-1].waiting[0, 0])  # the truck's end is about 10 m from the spot: < 30 m
+    back = [k for k, t in enumerate(far) if not bool(t.waiting[0, 0]) and float(t.s[0, 0]) < 10]
+    assert back, "it never came back with the truck 50 m away"
+    assert (50.0 - 8.0) - 2.0 > cfg.appear_clearance > math.hypot(20.0 - 2.0, 0.5 * w) - 8.0
+
+
 def test_lidar_sees_a_car_and_touching_one_collides():
     w = 9.0
     net = straight(60.0, w)

@@ -23,8 +23,10 @@ networks or vehicles, no host sync), in four parts:
    (the next block's lane across a joint); where none does (an open road end of the network, or
    an arm's in-lane ending on a roundabout ring) it leaves the road (``waiting``: no box, no
    segments) and reappears at rest at the start of the lane it was spawned on (its home lane),
-   its box just inside the lane, as soon as the home lane's first ``length + min_gap`` is clear
-   and the rules below let it. Nothing drives round a ring.
+   its box just inside the lane, as soon as the home lane's first ``length + min_gap`` is clear,
+   no ego box (the truck's) reaches within ``appear_clearance`` of that spot (a truck cannot
+   stop for a vehicle that appears a few metres before it) and the rules below let it.
+   Nothing drives round a ring.
 4. **Safety filter**: a vehicle's move is kept only if its new box (grown by ``safety_margin``)
    overlaps no other vehicle's box before or after the step and no ego box, and, of two
    vehicles whose new boxes would overlap, only the one of lower slot index may move; a held
@@ -106,6 +108,13 @@ class TrafficConfig:
     )
     safety_margin: float = param(
         0.1, lo=0.0, hi=2.0, unit="m", doc="growth of a box in the safety filter"
+    )
+    appear_clearance: float = param(
+        30.0,
+        lo=0.0,
+        hi=1000.0,
+        unit="m",
+        doc="a vehicle reappears only where every ego box's end is at least this far",
     )
 
     def __post_init__(self) -> None:
@@ -569,6 +578,9 @@ def step_traffic(
     crowded = (on_home & (tail < (length + cfg.min_gap).unsqueeze(1))).any(1)
     xn, yn, hn = _points_t(tr, lane_new, s_new)
     xn, yn, cn, snn = _computed_once(xn, yn, torch.cos(hn), torch.sin(hn))
+    if ego is not None:  # nor where the truck is near: it could not stop for it
+        gap = torch.hypot(xn.unsqueeze(1) - e[0].unsqueeze(0), yn.unsqueeze(1) - e[1].unsqueeze(0))
+        crowded = crowded | (gap < e[4].unsqueeze(0) + cfg.appear_clearance).any(1)
     # ---- junction yield: enter a zone only when it is empty and no lower slot enters it
     zd_new = torch.stack((xn.unsqueeze(1) - zcx, yn.unsqueeze(1) - zcy), -1).norm(dim=-1)
     enters = zmask & there.unsqueeze(1) & (zd_new < reach) & ~inside  # [M, Z, n]
