@@ -10,6 +10,7 @@ from tensordict import TensorDict
 
 from truckrl.config.fields import build
 from truckrl.planning import held_out_states
+from truckrl.planning.controller import setpoint_action
 from truckrl.sim.control import ControlConfig
 from truckrl.tasks import EnvConfig
 from truckrl.tasks.uturn.expert import (
@@ -17,7 +18,6 @@ from truckrl.tasks.uturn.expert import (
     TurnaroundDriver,
     drive,
     driven_demos,
-    setpoint_action,
 )
 from truckrl.tasks.uturn.scene import generate_uturn_scenes
 from truckrl.tasks.uturn.task import UTurnTask

@@ -4,16 +4,19 @@ Every function is pure torch on batches of ``N`` candidates and runs inside the 
 step (:meth:`truckrl.planning.rollout.Planner._step_fn`). A state ``s`` is the flat dict of
 :func:`truckrl.planning.rollout.flat_state`: ``pose [N, 4]`` (rear axle x, y [m], heading,
 articulation [rad]), ``goal [N, 3]``, the control state and ``params {key: [N]}``.
+:func:`setpoint_action` is the scripted drivers' tracker (the task experts' ``expert.py``).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import torch
 from torch import Tensor
+
+from truckrl.sim.control import ControlConfig
 
 
 def knot_matrix(steps: int, knots: int, device: torch.device | str | None = None) -> Tensor:
@@ -164,3 +167,43 @@ def arrival_distance(s: dict[str, Any], slack: float) -> Tensor:
     along = rel[:, 0] * c + rel[:, 1] * sn
     across = (-rel[:, 0] * sn + rel[:, 1] * c).abs() - slack
     return torch.hypot(along, across.clamp_min(0.0))
+
+
+def setpoint_action(
+    speed: Tensor,
+    steer: Tensor,
+    s: Mapping[str, Any],
+    control: ControlConfig,
+    dt: float,
+) -> Tensor:
+    """The action ``[n, 2]`` in ``[-1, 1]`` that moves speed and steering towards set-points.
+
+    ``speed`` mode: the affine map of :mod:`truckrl.sim.control` onto
+    ``[-max_reverse_speed, max_speed]``; ``angle``: ``steer / max_steer``. ``accel`` / ``rate``:
+    the rate that reaches the set-point in one step of ``dt`` [s], clamped to the mode's bound
+    (a dead-beat tracker). The second-order modes (jerk, steering acceleration) are not
+    supported.
+
+    Raises:
+        ValueError: a jerk or steering-acceleration control mode.
+    """
+    p = s["params"]
+    if control.longitudinal == "speed":
+        lo, hi = -p["max_reverse_speed"], p["max_speed"]
+        u_lon = 2 * (speed - lo) / (hi - lo) - 1
+    elif control.longitudinal == "accel":
+        u_lon = (speed - s["speed"]) / (dt * p["max_accel"])
+    else:
+        raise ValueError(
+            f"control.longitudinal = {control.longitudinal!r}: the scripted driver supports "
+            "speed and accel"
+        )
+    if control.lateral == "angle":
+        u_lat = steer / p["max_steer"]
+    elif control.lateral == "rate":
+        u_lat = (steer - s["steer"]) / (dt * p["max_steer_rate"])
+    else:
+        raise ValueError(
+            f"control.lateral = {control.lateral!r}: the scripted driver supports angle and rate"
+        )
+    return torch.stack((u_lon, u_lat), -1).clamp(-1.0, 1.0)

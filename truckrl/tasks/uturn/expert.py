@@ -7,8 +7,8 @@ few settings per scene. It is the task's expert (the contract is in :mod:`truckr
 
 * :class:`TurnaroundDriver` computes set-points (speed [m/s], steering angle [rad]) from the
   state, batched, in the scene's local frame (right branches mirrored to left).
-* :func:`setpoint_action` turns set-points into the action of any speed/accel x angle/rate
-  control mode (a one-step tracker for the integrating modes).
+* :func:`~truckrl.planning.controller.setpoint_action` turns set-points into the action of any
+  speed/accel x angle/rate control mode (a one-step tracker for the integrating modes).
 * :func:`drive` runs it through a :class:`~truckrl.env.TruckEnv` and records what the policy
   would have seen before each action, keeping successful episodes: the same samples as
   :func:`truckrl.rl.imitation.demonstrations`.
@@ -29,8 +29,8 @@ from tensordict import TensorDict
 from torch import Tensor
 
 from truckrl.env import LIDAR_KEY, OBS_KEY, TruckEnv
+from truckrl.planning.controller import setpoint_action
 from truckrl.planning.scenes import held_out_states
-from truckrl.sim.control import ControlConfig
 from truckrl.sim.geometry import wrap_angle
 from truckrl.tasks import MAX_DIFFICULTY, EnvConfig
 
@@ -179,46 +179,6 @@ class TurnaroundDriver:
         steer = steer.gather(1, ph[:, None])[:, 0]
         steer = self.side * torch.maximum(torch.minimum(steer, p["max_steer"]), -p["max_steer"])
         return speed, steer
-
-
-def setpoint_action(
-    speed: Tensor,
-    steer: Tensor,
-    s: Mapping[str, Any],
-    control: ControlConfig,
-    dt: float,
-) -> Tensor:
-    """The action ``[n, 2]`` in ``[-1, 1]`` that moves speed and steering towards set-points.
-
-    ``speed`` mode: the affine map of :mod:`truckrl.sim.control` onto
-    ``[-max_reverse_speed, max_speed]``; ``angle``: ``steer / max_steer``. ``accel`` / ``rate``:
-    the rate that reaches the set-point in one step of ``dt`` [s], clamped to the mode's bound
-    (a dead-beat tracker). The second-order modes (jerk, steering acceleration) are not
-    supported.
-
-    Raises:
-        ValueError: a jerk or steering-acceleration control mode.
-    """
-    p = s["params"]
-    if control.longitudinal == "speed":
-        lo, hi = -p["max_reverse_speed"], p["max_speed"]
-        u_lon = 2 * (speed - lo) / (hi - lo) - 1
-    elif control.longitudinal == "accel":
-        u_lon = (speed - s["speed"]) / (dt * p["max_accel"])
-    else:
-        raise ValueError(
-            f"control.longitudinal = {control.longitudinal!r}: the scripted driver supports "
-            "speed and accel"
-        )
-    if control.lateral == "angle":
-        u_lat = steer / p["max_steer"]
-    elif control.lateral == "rate":
-        u_lat = (steer - s["steer"]) / (dt * p["max_steer_rate"])
-    else:
-        raise ValueError(
-            f"control.lateral = {control.lateral!r}: the scripted driver supports angle and rate"
-        )
-    return torch.stack((u_lon, u_lat), -1).clamp(-1.0, 1.0)
 
 
 def drive(
