@@ -429,7 +429,7 @@ def clone_demonstrations(ac: Any, tc: Any, env: Any) -> tuple[dict, Any]:
     from truckrl.rl.imitation import bootstrap
 
     dc = tc.demos
-    how = "planning" if dc.source == "planner" else "driving (scripted turnaround)"
+    how = "planning" if dc.source == "planner" else "driving (the task's scripted driver)"
     log.info(f"demonstrations: {how} {dc.episodes} scenes (seed {dc.seed}) at difficulty "
              f"{dc.difficulty:g}, then behaviour cloning")  # fmt: skip
     last = [time.monotonic()]

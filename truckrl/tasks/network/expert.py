@@ -120,6 +120,12 @@ def _covered(
     return inside & on
 
 
+#: Per-episode outcome keys of :func:`drive` (the env's flags at the episode's end).
+OUTCOMES = ("success", "collision", "jackknife", "truncated")
+#: Final error keys of :func:`drive`: position [m], tractor and trailer heading [deg].
+ERRORS = ("pos_error", "tractor_heading_error", "trailer_heading_error")
+
+
 def drive(
     env_cfg: EnvConfig,
     states: TensorDict,
@@ -130,10 +136,11 @@ def drive(
     """Drive ``states`` (``[E]`` network start states) with ``driver`` through an eager env.
 
     Returns:
-        ``(result, samples)``: ``result`` ``{"success", "collision", "timeout", "steps",
-        "to_go"}`` ``[E]`` (``to_go``: the route arc length [m] from the truck to the goal at
-        the episode's last step); ``samples`` ``[M]`` with "observation", "lidar" and "action" of every step of
-        every successful episode (None without ``record``).
+        ``(result, samples)``: ``result`` ``[E]`` per episode: the :data:`OUTCOMES` (bool),
+        the :data:`ERRORS` at its last step, ``steps`` and ``to_go`` (the route arc length [m]
+        from the truck to the goal before its last step); ``samples`` ``[M]`` with
+        "observation", "lidar" and "action" of every step of every successful episode (None
+        without ``record``).
     """
     driver = driver or RouteDriver()
     e = int(states.batch_size[0])
@@ -142,7 +149,8 @@ def drive(
     env.set_difficulty(difficulty)
     td = env.set_state(states.clone())
     alive = torch.ones(e, dtype=torch.bool)
-    out = {k: torch.zeros(e, dtype=torch.bool) for k in ("success", "collision", "timeout")}
+    out = {k: torch.zeros(e, dtype=torch.bool) for k in OUTCOMES}
+    err = {k: torch.zeros(e) for k in ERRORS}
     steps = torch.zeros(e, dtype=torch.long)
     to_go = torch.zeros(e)
     rows: list[tuple[Tensor, Tensor, Tensor, Tensor]] = []
@@ -155,15 +163,19 @@ def drive(
         done = nxt["done"].squeeze(-1)
         steps += alive.long()
         to_go = torch.where(alive, s["goal_s"] - s["route_s"], to_go)
-        for k in out:
-            if k in nxt.keys():
-                out[k] |= alive & done & nxt[k].squeeze(-1).bool()
+        ending = alive & done
+        for k in OUTCOMES:
+            out[k] |= ending & nxt[k].squeeze(-1).bool()
+        for k in ERRORS:
+            err[k] = torch.where(ending, nxt[k].squeeze(-1), err[k])
         alive &= ~done
         td = nxt
         if not alive.any():
             break
     env.close()
-    result = {**out, "steps": steps, "to_go": to_go}
+    err["tractor_heading_error"] = err["tractor_heading_error"].rad2deg()
+    err["trailer_heading_error"] = err["trailer_heading_error"].rad2deg()
+    result = {**out, **err, "steps": steps, "to_go": to_go}
     if not record:
         return result, None
     ok = out["success"]
