@@ -29,7 +29,6 @@ from tests.golden.golden import (
     record_pinned,
 )
 
-
 #: Float tolerance of the env recordings, absolute and relative (module doc).
 ROLLOUT_TOL = 2e-6
 #: Tolerance of the PPO iteration, relative to each entry's largest magnitude (module doc).

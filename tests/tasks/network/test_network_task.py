@@ -440,8 +440,8 @@ def test_curriculum_keeps_the_draws_feasibility_verdict(sampled):
 
 
 def test_curriculum_starts_near_the_goal_then_routes_through_more_junctions():
-    """At difficulty 0 (level 0: 40 m, no traffic) most routes are 40 m from start to goal (60 %
-    of 1,024 at seed 1; the candidates reach 32 m either side; a route through no or one
+    """At difficulty 0 (level 0: 40 m, no traffic) about half the routes are 40 m from start to
+    goal (55 % of 1,024 at seed 1; the candidates reach 32 m either side; a route through no or one
     junction), no vehicle drives, and the blocks behind the start are out of the scene; at 1.5
     (the whole route through 1 junction) every route has 3 blocks; at 3 (2 junctions, every
     vehicle) 5 blocks and some traffic."""
@@ -451,7 +451,7 @@ def test_curriculum_starts_near_the_goal_then_routes_through_more_junctions():
     st = env.get_state()
     length = st["route", "route_length"]
     assert (length > 4.0).all() and (length < 40.0 + 32.0 + 1.0).all()
-    assert ((length - 40.0).abs() < 1.0).float().mean() > 0.5
+    assert ((length - 40.0).abs() < 1.0).float().mean() > 0.4
     assert (st["route", "junctions"] <= 1).all()
     assert not st["tr_active"].any() and (st["route", "traffic_density"] == 0).all()
     first = st["level_blocks"][torch.arange(64), 0].unsqueeze(-1)
@@ -573,3 +573,14 @@ def test_bad_config_is_a_one_line_error(task, needle):
             2, torch.Generator().manual_seed(0), torch.device("cpu")
         )
     assert needle in str(e.value) and "\n" not in str(e.value)
+
+
+def test_the_task_keeps_its_network_defaults_under_a_partial_override():
+    """The task draws 12-18 m roads with 20 cm chords; setting one of them keeps the other (the
+    sim's NetworkConfig defaults are 8-10 m and 5 cm)."""
+    net = EnvConfig(task={"name": "network"}).task.network
+    assert (tuple(net.road_width), net.chord_error) == ((12.0, 18.0), 0.2)
+    net = EnvConfig(task={"name": "network", "network": {"chord_error": 0.1}}).task.network
+    assert tuple(net.road_width) == (12.0, 18.0)
+    net = EnvConfig(task={"name": "network", "network": {"road_width": [9, 10]}}).task.network
+    assert net.chord_error == 0.2

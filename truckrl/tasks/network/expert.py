@@ -7,8 +7,10 @@ through the chain's junctions) forwards, with privileged knowledge of the traffi
   arc length past the truck's projection (``route_s``), the steering angle
   ``atan(2 L_t sin(alpha) / d)`` for the bearing ``alpha`` of that point from the tractor's
   heading and its distance ``d`` (Coulter 1992, "Implementation of the Pure Pursuit Path
-  Tracking Algorithm"). The route is the right-hand lane; the driver does not swing wide for
-  its trailer, which cuts inside a corner (docs/networks.md, "A scripted driver").
+  Tracking Algorithm"). Before a right turn (the route's heading ``wide_ahead`` metres on
+  turned right of its heading here) the aim moves up to ``wide`` metres left of the route, into
+  the other lane: the rig swings wide, so its trailer, which cuts inside, clears the junction's
+  inner curb corner (docs/networks.md, "A scripted driver").
 * **Speed** (:func:`~truckrl.planning.controller.setpoint_action` tracks it): the least of the cruise speed, the speed that keeps the lateral acceleration
   below ``lateral_accel`` on the route's curvature ahead, the speed that stops ``stop_gap``
   metres before the first route sample covered by a vehicle (its box grown by the truck's half
@@ -55,6 +57,9 @@ class RouteDriver:
     stop_gap: float = 3.0  # bumper gap kept to the first vehicle on the route
     clearance: float = 0.6  # added to the truck's half width round a vehicle's box
     arrive_speed: float = 1.0  # speed when crossing the goal
+    wide: float = 4.5  # [m] left of the route the tractor aims before a right turn
+    wide_ahead: float = 25.0  # [m] of route over which the coming turn is read
+    wide_turn: float = 1.0  # [rad] of right turn over wide_ahead for the full offset
 
     def setpoints(self, s: Mapping[str, Any]) -> tuple[Tensor, Tensor]:
         """``(speed [N] [m/s], steering angle [N] [rad])`` set-points for the state dict ``s``
@@ -65,7 +70,14 @@ class RouteDriver:
         end = cum[:, -1]
         # ---- steering: pure pursuit of the route by the tractor's rear axle
         ld = self.lookahead + self.lookahead_per_speed * v.clamp_min(0.0)
-        kappa_t = _pursuit(pts, cum, pose[:, :2], pose[:, 2], route_s + ld, end)
+        at = torch.stack((route_s + ld, route_s + self.wide_ahead), -1).minimum(end.unsqueeze(-1))
+        here, h0 = point_at(pts, cum, route_s.unsqueeze(-1))
+        target, h = point_at(pts, cum, at)
+        right = (-wrap_angle(h[:, 1] - h0[:, 0]) / self.wide_turn).clamp(0.0, 1.0)
+        left = torch.stack((-h[:, 0].sin(), h[:, 0].cos()), -1)
+        aim = target[:, 0] + (self.wide * right).unsqueeze(-1) * left
+        rel = to_local(aim.unsqueeze(1), pose[:, :2], pose[:, 2]).squeeze(1)
+        kappa_t = 2.0 * rel[:, 1] / (rel * rel).sum(-1).clamp_min(1e-6)
         steer = torch.atan(p["wheelbase"] * kappa_t)
         steer = torch.maximum(torch.minimum(steer, p["max_steer"]), -p["max_steer"])
         # ---- speed

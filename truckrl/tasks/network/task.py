@@ -106,15 +106,30 @@ def _default(cls: type, name: str) -> Any:
 
 
 @dataclass
+class TaskNetworkConfig(NetworkConfig):
+    """The chain's blocks as :class:`~truckrl.sim.network.config.NetworkConfig` draws them, with
+    the network task's own defaults for two fields (a partial override keeps the others)."""
+
+    #: the step's LiDAR and collision cost grows with the curbs in reach: a roundabout holds
+    #: 116 curbs at 5 cm, 64 at 20 cm (docs/networks.md, "The network task")
+    chord_error: float = param(
+        0.2, lo=1e-4, hi=1.0, unit="m", doc="largest gap between an arc and its polyline"
+    )
+    #: a rig turning right round a junction's sharp curb corner sweeps more than its lane: the
+    #: scripted driver turns right in none of the scenes on the sim's 8-10 m roads, in most on
+    #: 12-18 m roads (docs/networks.md, "A scripted driver")
+    road_width: tuple[float, float] = param(
+        (12.0, 18.0), lo=2.0, hi=40.0, unit="m", doc="road width, curb to curb (two lanes)"
+    )
+
+
+@dataclass
 class NetworkTaskConfig(TaskConfig):
     """Config of the network task: chain, route, traffic, curriculum and reward weights."""
 
     name: str = param("network", choices=("network",), doc="task folder")
     scene: NetworkSceneConfig = field(default_factory=NetworkSceneConfig)
-    #: curbs as polylines within 20 cm of their arcs (the sim's default is 5 cm): the step's
-    #: LiDAR and collision cost grows with the curbs in reach, and a roundabout holds 116 at 5
-    #: cm, 64 at 20 cm (docs/networks.md, "The network task")
-    network: NetworkConfig = field(default_factory=lambda: NetworkConfig(chord_error=0.2))
+    network: TaskNetworkConfig = field(default_factory=lambda: TaskNetworkConfig())
     traffic: TrafficConfig = field(default_factory=TrafficConfig)
     route: RouteConfig = field(default_factory=RouteConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)

@@ -138,11 +138,16 @@ def subgoal_poses(
         points, cum: the route ``[N, R, 2]`` and its arc length ``[N, R]`` [m].
         exits: ``[N, J]`` the junction exits' arc lengths [m] (:func:`junction_exits`).
         goal: ``[N, 3]`` the final goal; ``goal_s [N]`` its arc length [m].
-        past: [m] how far past an exit its sub-goal stands (clamped at ``goal_s``).
+        past: [m] how far past an exit its sub-goal stands (clamped at ``goal_s``, where it is
+            the goal).
     """
     s = (exits + past).minimum(goal_s.unsqueeze(-1))
     xy, heading = point_at(points, cum, s)
     poses = torch.cat((xy, heading.unsqueeze(-1)), -1)
+    # one clamped at the goal is the goal itself, not the resampled route's point there
+    poses = torch.where(
+        (exits + past >= goal_s.unsqueeze(-1)).unsqueeze(-1), goal.unsqueeze(1), poses
+    )
     return (
         torch.cat((poses, goal.unsqueeze(1)), 1),
         torch.cat((s, goal_s.unsqueeze(-1)), 1),
