@@ -584,3 +584,20 @@ def test_the_task_keeps_its_network_defaults_under_a_partial_override():
     assert tuple(net.road_width) == (12.0, 18.0)
     net = EnvConfig(task={"name": "network", "network": {"road_width": [9, 10]}}).task.network
     assert net.chord_error == 0.2
+
+
+def test_the_goal_link_is_never_a_curve_where_another_link_is_allowed(sampled):
+    """The goal's link (the chain's last block) is a straight road or a median; with curves the
+    only link type allowed, a curve."""
+    from truckrl.sim.network.config import BLOCK_NAMES
+
+    _, st = sampled
+    curve = BLOCK_NAMES.index("curve")
+    types = st["block_type"]
+    assert (types[:, -1] >= 0).all() and (types[:, -1] != curve).all()
+    assert (types[:, 0:-1:2] == curve).any()  # the other links still draw curves
+    task = make_task(
+        EnvConfig(task={"name": "network", "network": {"block_types": ["curve", "crossing"]}})
+    )
+    only = task.sample(8, torch.Generator().manual_seed(7), torch.device("cpu"))
+    assert (only["block_type"][:, -1] == curve).all()

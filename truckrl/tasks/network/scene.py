@@ -9,8 +9,9 @@ The chain
 ---------
 ``K = 2 J + 1`` blocks, ``J`` the most junctions any curriculum level routes through
 (:attr:`CurriculumConfig.junctions`): links ``L_0, J_1, L_1, ..., J_J, L_J`` alternate, a
-**link** (straight, curve or median: the ``network.block_types`` among them) entered at its
-socket 0 and left at its socket 1, a **junction** (crossing, T-junction or roundabout) entered
+**link** (straight, curve or median: the ``network.block_types`` among them; the goal's link
+``L_J`` never a curve where another link type is allowed) entered at its socket 0 and left at
+its socket 1, a **junction** (crossing, T-junction or roundabout) entered
 at a random socket and left at a random other one. Blocks are drawn and joined by
 :func:`truckrl.sim.network.compose.grow` (overlap rejection as for random networks).
 
@@ -46,8 +47,9 @@ curbs in reach (below, "Curb windows"). Other chains are redrawn, up to ``rounds
 round with fewer open episodes than ``round_chains`` draws several chains for each, the first
 kept wins: the same distribution in fewer rounds); a chain still failing is kept and marked
 (``info["feasible"] = 0``): none of 4,096 episodes drawn at the defaults (seed 0). The rule
-thins some shapes out: among the kept chains curves are 23 % of the links (not a third: a
-straight truck on a tight curve touches its curb) and roundabouts 29 % of the junctions (two
+thins some shapes out: among the kept chains curves are 20 % of the links (fewer than a third:
+the goal's link is never one, and a straight truck on a tight curve touches its curb) and
+roundabouts 31 % of the junctions (two
 near each other fill a window).
 
 Curb windows
@@ -305,13 +307,18 @@ def draw_chain(cfg: NetworkConfig, junctions: int, n: int, rand, dev) -> Network
     net_cfg = replace(cfg, num_blocks=(K, K))
     links = _types(cfg, LINK_TYPES, "link", dev)
     joints = _types(cfg, JUNCTION_TYPES, "junction", dev)
+    # the goal's link is straight (or a median) where the block types allow: on a curve the
+    # trailer trails the lane tangent by about L_ka / R (11 to 30 deg), beyond the tolerance
+    # of difficulty 2.5 on
+    straight = links[links != CURVE]
+    last = straight if straight.numel() else links
     types = tuple(sorted(set(links.tolist()) | set(joints.tolist())))
     width = uniform(cfg.road_width, rand(n))
     heading = 2.0 * math.pi * rand(n)
 
     def draw(k: int, rows: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         u = rand(rows, 6)
-        table = links if k % 2 == 0 else joints
+        table = (last if k == K - 1 else links) if k % 2 == 0 else joints
         kind = table[(u[:, 0] * len(table)).long().clamp_max(len(table) - 1)]
         params = block_params(net_cfg, kind, u[:, 3:])
         if k % 2 == 0:
