@@ -43,8 +43,8 @@ scenes: $(STAMP)
 	$(BIN)/truckrl tools scenes $(ARGS)
 
 # A shipped policy rebuilt from a clean commit by its preset, stopped by frames, with its card:
-# make pretrained TASK=intersection|dock|uturn (truckrl tools pretrained --help); the shipped
-# dock and uturn files are their runs' best.pt: make pretrained TASK=dock ARGS=checkpoint=best.
+# make pretrained TASK=intersection|dock|uturn|network (truckrl tools pretrained --help); the shipped
+# dock, uturn and network files are their runs' best.pt: make pretrained TASK=dock ARGS=checkpoint=best.
 pretrained: $(STAMP)
 	$(BIN)/truckrl tools pretrained task=$(TASK) $(ARGS)
 

@@ -26,6 +26,7 @@ from truckrl.tools.pretrained import TASKS, TASKS_DIR, TEMPLATE, main, template_
 PRESETS = {
     "dock": (48_000_000, 2_000_000, 7.0),
     "intersection": (200_000_000, 10_000_000, 6.0),
+    "network": (60_000_000, 5_000_000, 4.0),
     "uturn": (144_000_000, 6_000_000, 4.0),
 }
 
@@ -79,7 +80,7 @@ def test_a_clean_tree_goes_on_to_check_the_training_config(monkeypatch, tmp_path
 @pytest.mark.parametrize(
     ("args", "says"),
     [
-        ([], "error: task is required: task=dock|intersection|uturn"),
+        ([], "error: task is required: task=dock|intersection|network|uturn"),
         (["task=parking"], "error: task = 'parking' is not one of"),
         (["task=dock", "out=x.onnx"], "error: out = 'x.onnx': a .pt file to write"),
         (["task=dock", "episodes=0"], "error: episodes = 0 is outside"),
@@ -93,7 +94,7 @@ def test_bad_input_is_one_line(args, says, capsys):
 
 
 def test_every_task_with_a_shipped_policy_has_a_preset_and_a_card_section():
-    assert TASKS == ("dock", "intersection", "uturn")
+    assert TASKS == ("dock", "intersection", "network", "uturn")
     _, sections = template_parts(TEMPLATE.read_text())
     assert set(sections) == set(TASKS)
     assert all(about.endswith(").") for about, _ in sections.values())
