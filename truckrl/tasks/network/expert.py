@@ -34,7 +34,7 @@ from torch import Tensor
 
 from truckrl.env import LIDAR_KEY, OBS_KEY, TruckEnv
 from truckrl.planning.controller import setpoint_action
-from truckrl.planning.scenes import held_out_states
+from truckrl.planning.scenes import held_out_states, kept_samples
 from truckrl.sim.geometry import to_local, wrap_angle
 from truckrl.sim.network.traffic import boxes
 from truckrl.tasks import EnvConfig
@@ -190,16 +190,7 @@ def drive(
     result = {**out, **err, "steps": steps, "to_go": to_go}
     if not record:
         return result, None
-    ok = out["success"]
-    keep = [(m & ok, o, li, a) for m, o, li, a in rows]
-    samples = TensorDict(
-        {
-            OBS_KEY: torch.cat([o[m] for m, o, _, _ in keep]),
-            LIDAR_KEY: torch.cat([li[m] for m, _, li, _ in keep]),
-            "action": torch.cat([a[m] for m, _, _, a in keep]),
-        },
-        batch_size=[sum(int(m.sum()) for m, *_ in keep)],
-    )
+    samples = kept_samples(rows, out["success"])
     return result, samples
 
 

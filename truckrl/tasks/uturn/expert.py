@@ -30,7 +30,7 @@ from torch import Tensor
 
 from truckrl.env import LIDAR_KEY, OBS_KEY, TruckEnv
 from truckrl.planning.controller import setpoint_action
-from truckrl.planning.scenes import held_out_states
+from truckrl.planning.scenes import held_out_states, kept_samples
 from truckrl.sim.geometry import wrap_angle
 from truckrl.tasks import MAX_DIFFICULTY, EnvConfig
 
@@ -226,15 +226,7 @@ def drive(
     env.close()
     if not record:
         return succeeded, None
-    keep = [(m & succeeded, o, li, a) for m, o, li, a in rows]
-    samples = TensorDict(
-        {
-            OBS_KEY: torch.cat([o[m] for m, o, _, _ in keep]),
-            LIDAR_KEY: torch.cat([li[m] for m, _, li, _ in keep]),
-            "action": torch.cat([a[m] for m, _, _, a in keep]),
-        },
-        batch_size=[sum(int(m.sum()) for m, *_ in keep)],
-    )
+    samples = kept_samples(rows, succeeded)
     return succeeded, samples
 
 
