@@ -41,7 +41,7 @@ PINNED_ENV = {"ATEN_CPU_CAPABILITY": "default", "MKL_CBWR": "COMPATIBLE", "OMP_N
 TASK_ROLLOUT_FILES = {name: HERE / f"rollout_{name}.npz" for name in ("dock", "uturn")}
 #: Shipped policies and the difficulty their model card's success rate is claimed at
 #: (``truckrl/tasks/<task>/pretrained.md``).
-CLAIMED_DIFFICULTY = {"intersection": 6.0, "dock": 7.0, "uturn": 4.0}
+CLAIMED_DIFFICULTY = {"intersection": 6.0, "dock": 7.0, "uturn": 4.0, "network": 4.0}
 #: Per-episode outcomes of each shipped policy (:func:`golden_outcomes`).
 OUTCOME_FILES = {task: HERE / f"outcomes_{task}.npz" for task in CLAIMED_DIFFICULTY}
 #: Held-out scenes of the outcome recordings: ``truckrl eval``'s default seed, 100 episodes.
