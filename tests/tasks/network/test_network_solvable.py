@@ -25,6 +25,12 @@ def test_the_record_counts_every_episode(tmp_path, capsys):
         junctions = [c for c in r["categories"] if c["dimension"] == "junctions"]
         assert sum(c["count"] for c in junctions) == r["episodes"]
     assert data["tolerances"]["1"] == pytest.approx([15.0, 30.0])
+    head = data["runs"][2]  # the last difficulty, the first share: docs/render.py's table
+    assert (data["difficulty"], data["traffic_share"]) == (1.0, 1.0)
+    assert data["success_rate"] == head["success_rate"] and data["categories"] == head["categories"]
+    assert (data["tolerance_position_m"], data["tolerance_heading_deg"]) == pytest.approx(
+        (15.0, 30.0)
+    )
     assert "difficulty 1, traffic x0" in capsys.readouterr().out
 
 

@@ -10,7 +10,9 @@ level: route and traffic; its tolerances), once with the level's traffic and onc
 (``traffic`` shares of the spawned vehicles: the same seed draws the same chains, trucks and
 vehicles, the share only decides which drive), on ``experiment=network``'s 1,000-step
 episodes. Prints, per run, the outcome rates, where the failed episodes ended along the route,
-and the network task's bins; writes them with their provenance to ``out``.
+and the network task's bins; writes them with their provenance to ``out``, headed by the run at
+the last difficulty with the first traffic share in ``truckrl eval``'s layout (what
+docs/render.py tables).
 """
 
 from __future__ import annotations
@@ -130,13 +132,25 @@ def run(cfg: SolvableConfig) -> dict:
             )
             print(format_category_table(r["categories"]), flush=True)
     env_cfg = env_config(cfg, 1.0)
+    tol = env_cfg.tolerance
     prov = provenance("cpu")
     if Path(sys.argv[0]).parts[-2:] == ("network", "solvable.py"):
         prov["command"] = shlex.join(["python", "-m", __spec__.name, *sys.argv[1:]])
-    tol = env_cfg.tolerance
+    # the headline (what docs/render.py tables as an evaluation): the hardest level, first share
+    head = runs[(len(cfg.difficulties) - 1) * len(cfg.traffic)]
+    d = head["difficulty"]
     data = {
         "provenance": prov,
         "driver": "truckrl.tasks.network.expert.RouteDriver (defaults)",
+        "difficulty": d,
+        "traffic_share": head["traffic_share"],
+        "episodes": head["episodes"],
+        "tolerance_position_m": tol.position * 2.0**-d,
+        "tolerance_heading_deg": math.degrees(tol.heading) * 2.0**-d,
+        **{
+            k: head[k] for k in ("success_rate", "collision_rate", "jackknife_rate", "timeout_rate")
+        },
+        "categories": head["categories"],
         "seed": cfg.seed,
         "max_steps": cfg.max_steps,
         "road_width_m": list(env_cfg.task.network.road_width),
