@@ -47,9 +47,11 @@ class NetworkConfig:
     """Random road networks: which blocks, how many, and the ranges of their shapes.
 
     All lengths in metres, angles in radians, each value drawn uniformly from its ``[min, max]``
-    per block (the road width per network). The defaults fit the articulated truck of the other
-    tasks (roads it can turn on, curves it can follow, junction arms longer than a rig); the
-    source paper names blocks but no dimensions. Bounds that depend on other fields are checked
+    per block (the road width per network). The defaults are two-lane roads the truck of the
+    other tasks can follow (curves it can follow, junction arms longer than a rig) but not turn
+    right on at a junction's sharp curb corner within its lane: the ``network`` task draws
+    12-18 m roads instead (docs/networks.md, "A scripted driver"). The source paper names blocks
+    but no dimensions. Bounds that depend on other fields are checked
     in ``__post_init__`` and named in each field's doc.
     """
 
