@@ -23,8 +23,9 @@ main           ``truckrl/__main__.py``, the ``truckrl`` command that dispatches 
 =============  ===============================================================================
 
 A task folder (``truckrl/tasks/<name>/``) spans layers by role: ``expert.py`` and anything under
-``expert/`` sit in ``planning``, ``diagnosis.py`` in ``evaluation``, ``tools.py`` (the folder's own
-commands, ``python -m truckrl.tasks.<name>.tools``) in ``entry``, the rest in ``task``.
+``expert/`` sit in ``planning``, ``diagnosis.py`` in ``evaluation``, ``tools.py`` and anything
+under ``tools/`` (the folder's own commands, ``python -m truckrl.tasks.<name>.tools[.<command>]``)
+in ``entry``, the rest in ``task``.
 """
 
 from __future__ import annotations
@@ -160,6 +161,7 @@ def test_layer_of_knows_the_roles():
     assert layer_of("truckrl.tasks.uturn.task") == "task"
     assert layer_of("truckrl.tasks.uturn.diagnosis") == "evaluation"
     assert layer_of("truckrl.tasks.intersection.expert") == "planning"
+    assert layer_of("truckrl.tasks.network.tools.solvable") == "entry"
     assert layer_of("truckrl.config.fields") == "config"
     assert layer_of("truckrl.config.schemas") == "schemas"
     assert layer_of("truckrl.tools.paths") == "entry"

@@ -1,4 +1,4 @@
-"""``python -m truckrl.tasks.network.solvable``: its record and its one-line errors."""
+"""``python -m truckrl.tasks.network.tools.solvable``: its record and its one-line errors."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from truckrl.tasks.network.solvable import main
+from truckrl.tasks.network.tools.solvable import main
 
 
 def test_the_record_counts_every_episode(tmp_path, capsys):

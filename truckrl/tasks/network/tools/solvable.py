@@ -1,8 +1,8 @@
-"""``python -m truckrl.tasks.network.solvable``: how many network scenes the scripted route driver
+"""``python -m truckrl.tasks.network.tools.solvable``: how many network scenes the scripted route driver
 solves (a lower bound on how many are solvable; docs/networks.md, "A scripted driver").
 
-    python -m truckrl.tasks.network.solvable                       # defaults below
-    python -m truckrl.tasks.network.solvable episodes=200 difficulties=[1] out=null
+    python -m truckrl.tasks.network.tools.solvable                       # defaults below
+    python -m truckrl.tasks.network.tools.solvable episodes=200 difficulties=[1] out=null
 
 Drives ``episodes`` held-out scenes of ``seed`` (``truckrl eval``'s) with
 :class:`~truckrl.tasks.network.expert.RouteDriver` at each of ``difficulties`` (its curriculum
@@ -26,7 +26,7 @@ from pathlib import Path
 from truckrl.config.fields import param, validate
 from truckrl.tasks import MAX_DIFFICULTY
 
-PROG = "python -m truckrl.tasks.network.solvable"
+PROG = "python -m truckrl.tasks.network.tools.solvable"
 ABOUT = "How many network scenes the scripted route driver solves."
 
 
@@ -134,7 +134,7 @@ def run(cfg: SolvableConfig) -> dict:
     env_cfg = env_config(cfg, 1.0)
     tol = env_cfg.tolerance
     prov = provenance("cpu")
-    if Path(sys.argv[0]).parts[-2:] == ("network", "solvable.py"):
+    if Path(sys.argv[0]).parts[-2:] == ("tools", "solvable.py"):
         prov["command"] = shlex.join(["python", "-m", __spec__.name, *sys.argv[1:]])
     # the headline (what docs/render.py tables as an evaluation): the hardest level, first share
     head = runs[(len(cfg.difficulties) - 1) * len(cfg.traffic)]

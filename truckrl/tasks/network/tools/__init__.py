@@ -392,10 +392,7 @@ def run(cfg: ChainConfig) -> dict:
     tol = policy.env_config.tolerance
     scale = 2.0**-cfg.difficulty
     prov = provenance("cpu")
-    if Path(sys.argv[0]).parts[-2:] == (
-        "network",
-        "tools.py",
-    ):  # python -m truckrl.tasks.network.tools
+    if Path(sys.argv[0]).parts[-2:] == ("tools", "__main__.py"):  # python -m ...network.tools
         prov["command"] = shlex.join(["python", "-m", __spec__.name, *sys.argv[1:]])
     data = {
         "provenance": prov,
@@ -431,7 +428,3 @@ def main(argv: list[str] | None = None) -> int:
 
     cfg = key_value_config(ChainConfig, sys.argv[1:] if argv is None else argv, PROG, ABOUT)
     return run_or_fail(run, cfg)
-
-
-if __name__ == "__main__":
-    sys.exit(main())
