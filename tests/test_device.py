@@ -24,13 +24,21 @@ import truckrl
 
 ROOT = Path(truckrl.__file__).parent
 
-#: Task-folder modules off the step path (demonstrations, diagnostics and a folder's own command
-#: run host side).
+#: Task-folder modules off the step path (demonstrations, diagnostics and a folder's own
+#: commands run host side), and folders whose modules all are.
 OFF_STEP_PATH = {"expert.py", "diagnosis.py", "tools.py"}
+OFF_STEP_DIRS = {"expert", "tools"}
+
+
+def _on_step_path(p: Path) -> bool:
+    """A module of ``truckrl/tasks`` that is not off the step path by name or folder."""
+    return p.name not in OFF_STEP_PATH and not OFF_STEP_DIRS & set(p.relative_to(ROOT).parts[2:-1])
+
+
 #: Files on the step and update path.
 STEP_PATH = sorted(
     [*(ROOT / "sim").glob("*.py"), *(ROOT / "env").glob("*.py")]
-    + [p for p in (ROOT / "tasks").rglob("*.py") if p.name not in OFF_STEP_PATH]
+    + [p for p in (ROOT / "tasks").rglob("*.py") if _on_step_path(p)]
     + [ROOT / "rl" / f for f in ("ppo.py", "network.py", "collection.py", "metrics.py")]
 )
 FACTORIES = {"zeros", "ones", "full", "empty", "arange", "tensor", "as_tensor", "rand", "randn"}
