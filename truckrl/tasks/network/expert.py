@@ -71,7 +71,7 @@ class RouteDriver:
         # ---- steering: pure pursuit of the route by the tractor's rear axle
         ld = self.lookahead + self.lookahead_per_speed * v.clamp_min(0.0)
         at = torch.stack((route_s + ld, route_s + self.wide_ahead), -1).minimum(end.unsqueeze(-1))
-        here, h0 = point_at(pts, cum, route_s.unsqueeze(-1))
+        _, h0 = point_at(pts, cum, route_s.unsqueeze(-1))
         target, h = point_at(pts, cum, at)
         right = (-wrap_angle(h[:, 1] - h0[:, 0]) / self.wide_turn).clamp(0.0, 1.0)
         left = torch.stack((-h[:, 0].sin(), h[:, 0].cos()), -1)
@@ -102,17 +102,6 @@ class RouteDriver:
         to_goal = (goal_s - route_s).clamp_min(0.0)
         speed = speed.minimum((self.arrive_speed**2 + 2.0 * self.brake * to_goal).sqrt())
         return speed, steer
-
-
-def _pursuit(
-    pts: Tensor, cum: Tensor, xy: Tensor, heading: Tensor, at: Tensor, end: Tensor
-) -> Tensor:
-    """Pure-pursuit curvature [1/m] ``[N]`` of a point ``xy [N, 2]`` heading ``heading [N]``
-    towards the route point at arc length ``at [N]`` (clamped to ``end [N]``)."""
-    target, _ = point_at(pts, cum, at.minimum(end).unsqueeze(-1))
-    rel = to_local(target, xy, heading).squeeze(1)  # [N, 2]
-    d2 = (rel * rel).sum(-1).clamp_min(1e-6)
-    return 2.0 * rel[:, 1] / d2
 
 
 def _covered(

@@ -308,7 +308,7 @@ def draw_chain(cfg: NetworkConfig, junctions: int, n: int, rand, dev) -> Network
     links = _types(cfg, LINK_TYPES, "link", dev)
     joints = _types(cfg, JUNCTION_TYPES, "junction", dev)
     # the goal's link is straight (or a median) where the block types allow: on a curve the
-    # trailer trails the lane tangent by about L_ka / R (11 to 30 deg), beyond the tolerance
+    # trailer trails the lane tangent by about L_ka / R (tens of degrees), beyond the tolerance
     # of difficulty 2.5 on
     straight = links[links != CURVE]
     last = straight if straight.numel() else links

@@ -115,9 +115,8 @@ class TaskNetworkConfig(NetworkConfig):
     chord_error: float = param(
         0.2, lo=1e-4, hi=1.0, unit="m", doc="largest gap between an arc and its polyline"
     )
-    #: a rig turning right round a junction's sharp curb corner sweeps more than its lane: the
-    #: scripted driver turns right in none of the scenes on the sim's 8-10 m roads, in most on
-    #: 12-18 m roads (docs/networks.md, "A scripted driver")
+    #: a rig turning right round a junction's sharp curb corner sweeps more than its lane, and
+    #: on the sim's narrower roads it cannot (docs/networks.md, "A scripted driver")
     road_width: tuple[float, float] = param(
         (12.0, 18.0), lo=2.0, hi=40.0, unit="m", doc="road width, curb to curb (two lanes)"
     )
