@@ -233,6 +233,37 @@ def test_a_vehicle_yields_at_a_crossing_while_another_is_in_it():
     assert max(float(t.s[0, 1]) for t in after) > 30.0 + 5.0
 
 
+def test_a_vehicle_yields_at_a_crossing_while_the_truck_is_in_it():
+    """The truck's box in a zone holds the vehicles outside it as another vehicle does, even out
+    of their corridors; with the truck away they drive through."""
+    w = 9.0
+    net = network_from_blocks(
+        {"road_width": w, "blocks": [{"type": "crossing", "angle_deg": 90, "arm": 30}]}
+    )
+    cfg = TrafficConfig()
+    # B comes from 25 m south on lane 2 (+y, x = 30 + w/4); the ego box (10 m x 2.5 m along +x)
+    # stands on road 0 with its centre 6 m before the crossing's centre: inside the zone
+    # (6.4 m < radius + 5 m) and 8.25 m to the side of B's path, beyond B's corridor
+    # (0.9 + 5 + corridor_margin = 6.4 m)
+    tr = place_vehicles(
+        net, cfg, torch.tensor([[2]]), torch.tensor([[5.0]]), torch.tensor([[4.5]]),
+        torch.tensor([[1.8]]), torch.tensor([[10.0]]),
+    )  # fmt: skip
+    radius = 0.5 * w * math.sqrt(2.0) + cfg.zone_margin
+    centre = np.array([30.0, 0.0])
+
+    def box(x: float) -> torch.Tensor:
+        return torch.tensor([[[x, -0.25 * w, 1.0, 0.0, 5.0, 1.25]]])
+
+    assert math.hypot(6.0, 0.25 * w) < radius + 5.0
+    held = rollout(net, cfg, tr, 200, box(24.0))
+    for t in held:
+        assert np.linalg.norm(poses(net, t)[0][0, 0] - centre) >= radius + 2.25 - 1e-3
+    assert float(held[-1].v[0, 0]) < 0.05
+    free = rollout(net, cfg, tr, 200, box(0.0))
+    assert max(float(t.s[0, 0]) for t in free) > 30.0 + 5.0
+
+
 def test_at_an_open_road_end_a_vehicle_leaves_and_reappears_on_its_home_lane():
     net, cfg = straight(40.0), TrafficConfig()
     tr = place_vehicles(net, cfg, *(t.unsqueeze(0) for t in two(0, 30.0, 4.0, 1.8, 10.0)))

@@ -17,8 +17,11 @@ networks or vehicles, no host sync), in four parts:
 2. **Junction yield**: each crossing, T-junction and roundabout is a zone, a disc round its
    centre reaching ``zone_margin`` beyond its road surface. A vehicle is in a zone when its
    centre is nearer than the zone's radius plus its half length. A vehicle may enter a zone
-   only while no other vehicle is in it and no vehicle of lower slot index enters it in the
-   same step; otherwise it holds where it is (and the IDM has braked it towards the edge).
+   only while no other vehicle and no ego box (the truck's tractor or trailer, its centre nearer
+   than the zone's radius plus its half length) is in it and no vehicle of lower slot index
+   enters it in the same step; otherwise it holds where it is (and the IDM has braked it
+   towards the edge). Without the truck in the rule a car entered a junction the truck was
+   crossing and stopped in its swept path, where the truck could not avoid it.
 3. **Lane ends**: a vehicle passing its lane's end continues on the lane that starts there
    (the next block's lane across a joint); where none does (an open road end of the network, or
    an arm's in-lane ending on a roundabout ring) it leaves the road (``waiting``: no box, no
@@ -550,6 +553,10 @@ def step_traffic(
     zm = zmask & on_p.unsqueeze(1)
     inside = zm & (zd < reach)
     held_by = inside.sum(0) > inside.long()  # [i, Z, n]: another vehicle is in
+    if ego is not None:  # or the truck: its box's centre within the zone's radius + half length
+        zd_e = torch.hypot(e[0].unsqueeze(1) - zcx, e[1].unsqueeze(1) - zcy)  # [B, Z, n]
+        ego_in = (zmask & (zd_e < zr.unsqueeze(0) + e[4].unsqueeze(1))).any(0)  # [Z, n]
+        held_by = held_by | ego_in.unsqueeze(0)
     toward = (zcx - x.unsqueeze(1)) * c.unsqueeze(1) + (zcy - y.unsqueeze(1)) * sn.unsqueeze(1)
     zone_ahead = zm & ~inside & held_by & (toward > 0.0) & (zd - reach < cfg.look_ahead)
     zone_gap = (zd - reach).masked_fill(~zone_ahead, math.inf).amin(1)
