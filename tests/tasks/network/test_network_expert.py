@@ -126,7 +126,8 @@ def test_demonstrations_are_what_the_policy_sees():
     cfg = EnvConfig(task={"name": "network"}, max_steps=1000, episode_pool=16)
     solved, samples = demonstrations(cfg, 8, 99991, 0.0)
     assert solved.shape == (8,) and solved.any()
-    assert samples[OBS_KEY].shape[-1] == 26 + 8  # the shared features and the route extras
+    # the shared features, the route extras and the tracks
+    assert samples[OBS_KEY].shape[-1] == 26 + 8 + 24
     assert samples[LIDAR_KEY].shape[-1] == cfg.lidar.num_beams
     a = samples["action"]
     assert a.abs().max() <= 1.0 and a.shape[-1] == 2

@@ -127,7 +127,8 @@ def test_env_specs_observation_and_bins():
     env = network_env()
     check_env_specs(env, seed=0)
     td = env.reset()
-    assert td["observation"].shape == (4, 26 + 8)  # 4 route points ahead, x and y each
+    # 4 route points ahead (x, y each), 4 tracks (6 each)
+    assert td["observation"].shape == (4, 26 + 8 + 24)
     info = {k: v for k, v in env.get_state()["route"].items()}
     bins = env.task.category_bins(info)
     assert set(bins) == {
@@ -277,6 +278,45 @@ def test_leaving_idle_traffic_out_of_the_step_changes_nothing():
     assert (idle_state == busy_state).all()
     assert busy_state["tr_active"].any()  # vehicles took part after the rise
     assert idle[0] == set(TRAFFIC_KEYS) and not idle[-1]
+
+
+def test_tracks_are_the_nearest_vehicles_in_the_tractor_frame_by_a_numpy_oracle():
+    """The observation's tracks against the vehicles walked along their lanes in numpy, turned
+    into the tractor's frame and sorted by distance by hand."""
+    env = network_env(n=16, seed=3, tracks=3)
+    env.set_difficulty(3.0)  # every spawned vehicle drives
+    td = env.reset()
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(5):
+        action = torch.rand(16, 2, generator=gen) * 2.0 - 1.0
+        _, td = env.step_and_maybe_reset(td.set("action", action))
+    state = env.get_state()
+    obs = td["observation"][:, 26 + 8 :].double().numpy().reshape(16, 3, 6)
+    net = SimpleNamespace(lanes=state["tr_lanes"])
+    xy, heading = poses(net, SimpleNamespace(lane=state["tr_lane"], s=state["tr_s"]))
+    pose = state["pose"].double().numpy()
+    on = (state["tr_active"] & ~state["tr_waiting"]).numpy()
+    speed = state["tr_v"].double().numpy()
+    reach = env.config.lidar.max_range
+    seen_any = 0
+    for i in range(16):
+        c, s_ = math.cos(pose[i, 2]), math.sin(pose[i, 2])
+        rows = []
+        for j in np.flatnonzero(on[i]):
+            dx, dy = xy[i, j] - pose[i, :2]
+            x, y = c * dx + s_ * dy, -s_ * dx + c * dy
+            if math.hypot(x, y) < reach:
+                rel = heading[i, j] - pose[i, 2]
+                rows.append((math.hypot(x, y), [1, x / 50, y / 50, math.cos(rel), math.sin(rel),
+                                                speed[i, j] / 10]))  # fmt: skip
+        rows.sort(key=lambda r: r[0])
+        want = np.zeros((3, 6))
+        for r, (_, f) in enumerate(rows[:3]):
+            want[r] = f
+        seen_any += len(rows) > 0
+        np.testing.assert_allclose(obs[i], want, atol=2e-4)
+    assert seen_any >= 4  # vehicles were in reach in several scenes
+    env.close()
 
 
 def test_route_progress_by_hand():

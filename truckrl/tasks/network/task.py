@@ -22,15 +22,19 @@ among moving traffic, to a goal pose.
   truck's projection on the route to the goal's, plus the truck's distance from the route, and
   the heading terms are measured to the route's heading at the projection (the goal heading at
   the goal). Potential-based, as the intersection task's ``route`` shaping.
-* Observation extras (``2 route.ahead``): the route points ``spacing, 2 spacing, ...`` metres
-  of arc length ahead of the truck's projection (held at the goal), in the tractor frame, over
-  the sensor scale (50 m).
+* Observation extras (``2 route.ahead + 6 tracks``): the route points ``spacing, 2 spacing,
+  ...`` metres of arc length ahead of the truck's projection (held at the goal), in the tractor
+  frame, over the sensor scale (50 m); then the ``tracks`` nearest vehicles within the LiDAR's
+  range (:func:`observe_tracks`: present, position, heading and speed in the tractor frame), as
+  an object tracker would report them. The LiDAR alone shows where a vehicle is, not where it
+  is going: a truck that must cross a lane needs the speed of what comes along it.
 * Evaluation bins (:mod:`truckrl.tasks.network.bins`): block types on the route, junctions,
   traffic density, turn directions.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any
@@ -46,6 +50,7 @@ from truckrl.sim.network.traffic import (
     Traffic,
     TrafficConfig,
     ego_boxes,
+    lane_points,
     step_traffic,
     traffic_segments,
 )
@@ -133,6 +138,10 @@ class NetworkTaskConfig(TaskConfig):
     route: RouteConfig = field(default_factory=RouteConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
     reward: PoseRewardConfig = field(default_factory=PoseRewardConfig)
+    tracks: int = param(
+        4, lo=0, hi=64, unit="-",
+        doc="nearest vehicles observed (present, x, y, cos and sin of heading, speed; 6 each)",
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         validate(self, "env.task")
@@ -164,7 +173,7 @@ class NetworkTask(PoseGoal, Task):
     def __init__(self, cfg: EnvConfig) -> None:
         super().__init__(cfg)
         task = cfg.task
-        self.num_extras = 2 * task.route.ahead
+        self.num_extras = 2 * task.route.ahead + TRACK_FEATURES * task.tracks
         self.levels = task.curriculum.starts
         self.max_junctions = task.curriculum.max_junctions
         self._thresholds = torch.tensor(task.curriculum.difficulty)
@@ -348,17 +357,62 @@ class NetworkTask(PoseGoal, Task):
         )
 
     def observation_extras(self, s: dict[str, Any]) -> Tensor:
-        """``[N, 2 ahead]``: the route points ahead (module doc), x and y of each in turn."""
+        """``[N, 2 ahead + 6 tracks]``: the route points ahead (module doc), x and y of each in
+        turn, then the nearest vehicles (:func:`observe_tracks`)."""
         pose = s["pose"]
         query = (s["route_s"].unsqueeze(-1) + self._ahead).minimum(s["goal_s"].unsqueeze(-1))
         xy, _ = point_at(s["route_points"], s["route_cum"], query)
-        return (to_local(xy, pose[:, :2], pose[:, 2]) / SENSOR_SCALE).flatten(1)
+        route = (to_local(xy, pose[:, :2], pose[:, 2]) / SENSOR_SCALE).flatten(1)
+        k = self.cfg.task.tracks
+        if k == 0:
+            return route
+        if TRAFFIC_KEYS[0] not in s:  # no vehicle anywhere (idle_keys): every track absent
+            return torch.cat((route, route.new_zeros(route.shape[0], TRACK_FEATURES * k)), 1)
+        tracks = observe_tracks(traffic_of(s), pose, k, self.cfg.lidar.max_range)
+        return torch.cat((route, tracks), 1)
 
 
 # ---------------------------------------------------------------------------------- helpers
 def traffic_of(s: Mapping[str, Any]) -> Traffic:
     """The :class:`~truckrl.sim.network.traffic.Traffic` held in a state's ``tr_`` keys."""
     return Traffic(**{f: s[f"tr_{f}"] for f in TRAFFIC_FIELDS})
+
+
+#: Observed features per track: present (1, else 0 and the rest 0), x and y in the tractor
+#: frame over SENSOR_SCALE, cosine and sine of the heading relative to the tractor's, and the
+#: speed over TRACK_SPEED_SCALE.
+TRACK_FEATURES = 6
+#: Speed scale of the tracks [m/s]: the traffic's desired speeds are of this order (5-12 m/s).
+TRACK_SPEED_SCALE = 10.0
+
+
+def observe_tracks(traffic: Traffic, pose: Tensor, k: int, reach: float) -> Tensor:
+    """The ``k`` vehicles nearest the tractor's reference point ``pose[:, :2]`` (centre to
+    point, those on the road within ``reach`` [m]), nearest first, as ``[N, 6 k]``
+    (:data:`TRACK_FEATURES` each, zeros where fewer are in reach)."""
+    xy, heading = lane_points(traffic, traffic.lane, traffic.s)  # [N, M, 2], [N, M]
+    local = to_local(xy, pose[:, :2], pose[:, 2])
+    dist = local.norm(dim=-1)
+    seen = traffic.present() & (dist < reach)
+    n, m = dist.shape
+    j = min(k, m)
+    order = dist.masked_fill(~seen, math.inf).topk(j, dim=1, largest=False).indices  # [N, j]
+    rel = heading - pose[:, 2:3]
+    feats = torch.stack(
+        (
+            seen.float(),
+            local[..., 0] / SENSOR_SCALE,
+            local[..., 1] / SENSOR_SCALE,
+            torch.cos(rel),
+            torch.sin(rel),
+            traffic.v / TRACK_SPEED_SCALE,
+        ),
+        -1,
+    ) * seen.unsqueeze(-1)  # [N, M, 6]
+    out = feats.gather(1, order.unsqueeze(-1).expand(n, j, TRACK_FEATURES))
+    if j < k:
+        out = torch.cat((out, out.new_zeros(n, k - j, TRACK_FEATURES)), 1)
+    return out.flatten(1)
 
 
 def empty_traffic(n: int, m: int, device) -> dict[str, Tensor]:
