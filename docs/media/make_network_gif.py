@@ -1,23 +1,23 @@
 """An animated drive through a road network for the docs (``docs/media/network.gif``).
 
-    python docs/media/make_network_gif.py                       # pretrained:intersection
-    python docs/media/make_network_gif.py --checkpoint outputs/DATE/TIME --traffic 0
+    python docs/media/make_network_gif.py                       # pretrained:network
+    python docs/media/make_network_gif.py --checkpoint pretrained:intersection --junctions 1
 
-No policy is trained on the ``network`` task yet, so the driver is an intersection policy
-(``--checkpoint``, default the shipped ``pretrained:intersection``; any checkpoint whose task
-observes the intersection task's layout) rolled forward over the route's junction exits as
-sub-goals: the sub-goal view of the network task (:mod:`truckrl.tasks.network.cells`, as the
-chain tool :mod:`truckrl.tasks.network.tools` builds it: the policy's vehicle, LiDAR, control
-and ``dt``, the sub-goal defaults, the chain tool's episode limit; docs/chaining.md), at
-difficulty 4, routes through ``--junctions`` junctions with ``--traffic`` of the spawned
-vehicles driving (every curriculum level set to that). That policy reaches the goal in few such scenes
-(docs/chaining.md), so the script plays held-out scenes (one truck, env seeds ``--seed``,
-``--seed + 1``, ...; no training uses them) until one ends in SUCCESS, and fails after
-``--tries``; with ``--followed``, only scenes too large to show whole (the viewer follows the
-truck). Each frame is the viewer's (:func:`truckrl.viewer.runner.run_loop`, the runner of
-``truckrl play``, no HUD panel): the camera follows the truck through the network, the route a
-thin pink line, cars red, trucks magenta; the current sub-goal is marked here as a green ring.
-The GIF keeps every k-th frame so that it plays in at most ``--max-seconds``.
+A policy trained on the ``network`` task (``--checkpoint``, default the shipped
+``pretrained:network``) drives its own task. Any other checkpoint whose task observes the
+intersection task's layout is rolled forward over the route's junction exits as sub-goals: the
+sub-goal view of the network task (:mod:`truckrl.tasks.network.cells`, as the chain tool
+:mod:`truckrl.tasks.network.tools` builds it: the policy's vehicle, LiDAR, control and ``dt``,
+the sub-goal defaults, the chain tool's episode limit; docs/chaining.md). Either way at
+difficulty 4, on routes through ``--junctions`` junctions with ``--traffic`` of the spawned
+vehicles driving (every curriculum level set to that). The script plays held-out scenes (one
+truck, env seeds ``--seed``, ``--seed + 1``, ...; no training uses them) until one ends in
+SUCCESS, prints every outcome, and fails after ``--tries``; with ``--followed``, only scenes too
+large to show whole (the viewer follows the truck). Each frame is the viewer's
+(:func:`truckrl.viewer.runner.run_loop`, the runner of ``truckrl play``, no HUD panel): the
+camera follows the truck through the network, the route a thin pink line, cars red, trucks
+magenta; a current sub-goal is marked here as a green ring. The GIF keeps every k-th frame so
+that it plays in at most ``--max-seconds``.
 """
 
 from __future__ import annotations
@@ -34,6 +34,26 @@ HERE = Path(__file__).resolve().parent
 DIFFICULTY = 4.0
 
 
+def levels_set(task, junctions: int, share: float):
+    """``task`` (a network task config) with every curriculum level routing through
+    ``junctions`` junctions with ``share`` of the spawned vehicles driving."""
+    from dataclasses import replace
+
+    levels = len(task.curriculum.difficulty)
+    curriculum = replace(
+        task.curriculum, junctions=(junctions,) * levels, traffic=(share,) * levels
+    )
+    return replace(task, curriculum=curriculum)
+
+
+def network_env(base, junctions: int, share: float):
+    """The network env of ``base`` (a network policy's config) with its levels set
+    (:func:`levels_set`) and its own episode limit."""
+    from dataclasses import replace
+
+    return replace(base, compile=False, task=levels_set(base.task, junctions, share))
+
+
 def subgoal_env(base, junctions: int, share: float):
     """The sub-goal network env of ``base`` (the policy's :class:`~truckrl.tasks.EnvConfig`):
     every curriculum level routes through ``junctions`` junctions with ``share`` of the spawned
@@ -43,12 +63,7 @@ def subgoal_env(base, junctions: int, share: float):
     from truckrl.tasks.network.cells.task import CellsTaskConfig
     from truckrl.tasks.network.tools import ChainConfig
 
-    task = CellsTaskConfig()
-    levels = len(task.curriculum.difficulty)
-    curriculum = replace(
-        task.curriculum, junctions=(junctions,) * levels, traffic=(share,) * levels
-    )
-    task = replace(task, curriculum=curriculum)
+    task = levels_set(CellsTaskConfig(), junctions, share)
     return replace(base, max_steps=ChainConfig().max_steps, compile=False, task=task)
 
 
@@ -98,8 +113,8 @@ def play_scene(
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--checkpoint", default="pretrained:intersection", help="the driving policy")
-    ap.add_argument("--junctions", type=int, default=1, help="junctions on the route")
+    ap.add_argument("--checkpoint", default="pretrained:network", help="the driving policy")
+    ap.add_argument("--junctions", type=int, default=2, help="junctions on the route")
     ap.add_argument("--traffic", type=float, default=1.0, help="share of vehicles that drive")
     ap.add_argument("--seed", type=int, default=12345, help="first env seed tried")
     ap.add_argument("--tries", type=int, default=200, help="scenes played before giving up")
@@ -120,8 +135,11 @@ def main() -> None:
     from truckrl.viz.video import gif_bytes
 
     policy = load_policy(args.checkpoint)
-    check_policy(policy, args.checkpoint)
-    env_cfg = subgoal_env(policy.env_config, args.junctions, args.traffic)
+    if policy.env_config.task.name == "network":
+        env_cfg = network_env(policy.env_config, args.junctions, args.traffic)
+    else:
+        check_policy(policy, args.checkpoint)
+        env_cfg = subgoal_env(policy.env_config, args.junctions, args.traffic)
     for seed in range(args.seed, args.seed + args.tries):
         frames, outcome, steps = play_scene(policy, env_cfg, seed, args.size, args.followed)
         print(f"seed {seed}: {outcome} after {steps} steps", flush=True)
