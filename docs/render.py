@@ -273,23 +273,34 @@ ENV_LAYOUTS = {
 
 def env_tables(doc: dict[str, Any]) -> dict[str, Table]:
     """``bench env``: one row per layout and size, eager and compiled env-steps/s side by side,
-    and the ratio to the paper's layout where the run measured it."""
+    and the ratio to the paper's layout where the run measured it; a run over several tasks
+    (``tasks=[...]``) leads each row with its task and ends it with its compiled ratio to the
+    intersection task's row of the same layout (``x intersection``, as the run reports it)."""
     cells: dict[tuple, dict[bool, float]] = {}
+    ratios: dict[tuple, float] = {}
+    tasks = len({r.get("task") for r in doc["rows"]}) > 1
     for r in doc["rows"]:
-        key = (r["layout"], r["workers"], r["envs/worker"])
+        key = (r.get("task") if tasks else None, r["layout"], r["workers"], r["envs/worker"])
         cells.setdefault(key, {})[bool(r["compile"])] = r["steps/s"]
+        if tasks and r.get("x intersection") is not None:
+            ratios[key] = r["x intersection"]
     paper = doc.get("summary", {}).get("paper_layout_steps_per_s")
     header = ["layout", "processes × trucks", "eager", "compiled"]
+    if tasks:
+        header = ["task", *header, "× intersection"]
     if paper:
         header.append("best × paper layout")
     rows = []
-    for (layout, workers, per), by_mode in cells.items():
+    for key, by_mode in cells.items():
+        task, layout, workers, per = key
         row = [
             ENV_LAYOUTS.get(layout, layout),
             f"{workers} × {per:,}",
             num(by_mode.get(False)),
             num(by_mode.get(True)),
         ]
+        if tasks:
+            row = [task, *row, pct(ratios[key]) if key in ratios else "–"]
         if paper:
             row.append(f"{max(by_mode.values()) / paper:,.1f}")
         rows.append(row)

@@ -35,6 +35,7 @@ def out(render, tmp_path):
 def test_the_out_folder_holds_exactly_the_fragments(out):
     names = sorted(str(p.relative_to(out)) for p in out.rglob("*.md"))
     assert names == [
+        "benchmarks/env-tasks.md",
         "benchmarks/env.md",
         "results/dock-bins.md",
         "results/dock.md",
@@ -120,6 +121,16 @@ def test_bench_env_pivots_compile_modes_and_reads_provenance_from_the_record(out
         "warmup=5 compile=both collector=false device=cuda paper=false` (reconstructed) · "
         "machine: NVIDIA H100 80GB HBM3, 16 CPU cores, torch 2.11.0+cu130, load average 3.2 · "
         "torch threads: 16 · commit: not recorded · date: 2030-01-02 07:47\n"
+    )
+
+
+def test_bench_env_over_several_tasks_names_each_task_and_its_ratio_to_intersection(out):
+    table = (out / "benchmarks" / "env-tasks.md").read_text().split("\n\n")[0]
+    assert table == (
+        "| task | layout | processes × trucks | eager | compiled | × intersection |\n"
+        "|---|---:|---:|---:|---:|---:|\n"
+        "| intersection | one batched TruckEnv | 1 × 1,024 | – | 400,000 | 100.0 % |\n"
+        "| network | one batched TruckEnv | 1 × 1,024 | – | 60,000 | 15.0 % |"
     )
 
 
