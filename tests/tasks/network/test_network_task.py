@@ -601,6 +601,7 @@ def test_bins_by_hand():
             "env.task.network.block_types = ['straight', 'curve']: needs a junction",
         ),
         ({"route": {"ahead": 0}}, "env.task.route.ahead = 0 is outside the allowed range"),
+        ({"tracks": 65}, "env.task.tracks = 65 is outside the allowed range"),
         (
             {"traffic": {"density": [3.0, 1.0]}},
             "env.task.traffic.density = [3.0, 1.0]: min must not exceed max",
