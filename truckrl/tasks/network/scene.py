@@ -46,11 +46,10 @@ and the chain has all ``K`` blocks, and no stretch of its route has more than ``
 curbs in reach (below, "Curb windows"). Other chains are redrawn, up to ``rounds`` times (a
 round with fewer open episodes than ``round_chains`` draws several chains for each, the first
 kept wins: the same distribution in fewer rounds); a chain still failing is kept and marked
-(``info["feasible"] = 0``): none of 4,096 episodes drawn at the defaults (seed 0). The rule
-thins some shapes out: among the kept chains curves are 20 % of the links (fewer than a third:
-the goal's link is never one, and a straight truck on a tight curve touches its curb) and
-roundabouts 31 % of the junctions (two
-near each other fill a window).
+(``info["feasible"] = 0``; how often at the defaults: docs/networks.md, "The network task").
+The rule thins some shapes out: curves are fewer among the kept links than among the drawn (the
+goal's link is never one, and a straight truck on a tight curve touches its curb), and so are
+roundabouts among the junctions (two near each other fill a window).
 
 Curb windows
 ------------
