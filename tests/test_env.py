@@ -178,6 +178,30 @@ def test_partial_reset_observation_is_the_restarted_state_observed():
     assert checked >= n
 
 
+def test_restart_after_a_difficulty_change_starts_at_the_new_difficulty():
+    # Independent answer: a twin of the same seed at the new difficulty from the start draws the
+    # same episodes in the same order, so its restarts must match bit for bit. The pool prepares
+    # its episodes (the dock task's start curriculum) for the difficulty of the first take; a
+    # pool that kept them after set_difficulty would restart the trucks at the old one.
+    cfg = {"task": {"name": "dock"}, "max_steps": 1}
+    changed, twin, old = (make(4, seed=6, **cfg) for _ in range(3))
+    action = torch.zeros(4, 2)
+    outs = []
+    for env, d in ((changed, 0.0), (twin, 3.0), (old, 0.0)):
+        env.set_difficulty(d)
+        td = env.reset()
+        changed.set_difficulty(3.0)  # after its first episodes were drawn and started
+        _, td = env.step_and_maybe_reset(td.set("action", action))  # every truck restarts
+        outs.append((env.get_state(), td))
+    (a, ta), (b, tb), (c, _) = outs
+    assert torch.all(a["step_count"] == 0)
+    for key in b.keys(include_nested=True, leaves_only=True):
+        assert torch.equal(a[key], b[key]), key
+    for key in ("observation", "lidar", "difficulty"):
+        assert torch.equal(ta[key], tb[key]), key
+    assert not torch.equal(a["pose"], c["pose"])  # the difficulty moves these starts
+
+
 def test_same_seed_same_observations_different_seed_differs():
     a = make(5, seed=123).reset()
     b = make(5, seed=123).reset()

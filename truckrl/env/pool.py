@@ -2,13 +2,16 @@
 
 Generating scenes in one batch is far cheaper per episode than one at a time, and a training
 batch restarts a few trucks on most steps, so episodes are drawn ``size`` at a time and handed
-out in order. The pool keeps plain tensors, one per state leaf, because taking rows is then one
-slice per leaf instead of an index into a nested TensorDict.
+out in order. The pool also holds them prepared for the current difficulty (a task's start
+curriculum applied, their first observation computed) for the whole pool in one batch, because
+preparing a few rows at every restart costs the same fixed overhead as preparing hundreds. The
+pool keeps plain tensors, one per state leaf, because taking rows is then one slice per leaf
+instead of an index into a nested TensorDict.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 
 import torch
 
@@ -16,6 +19,17 @@ import torch
 Leaves = dict[str | tuple[str, ...], torch.Tensor]
 #: Observation leaves ``{key: [m, ...]}``.
 Observation = dict[str, torch.Tensor]
+#: ``prepare(leaves, key)`` -> the episodes as they start under ``key`` and their first
+#: observation, row ``i`` of both from row ``i`` of ``leaves`` alone.
+Prepare = Callable[[Leaves, Hashable], tuple[Leaves, Observation]]
+
+
+def _cat(a: dict, b: dict) -> dict:
+    return {key: torch.cat((a[key], b[key])) for key in b}
+
+
+def _split(leaves: dict, m: int) -> tuple[dict, dict]:
+    return {k: v[:m] for k, v in leaves.items()}, {k: v[m:] for k, v in leaves.items()}
 
 
 class EpisodePool:
@@ -23,56 +37,50 @@ class EpisodePool:
 
     Invariant: every drawn episode is handed out exactly once, in the order drawn, so the
     sequence of episodes is fixed by the generator behind ``draw`` and the sizes taken;
-    :meth:`clear` (on a new seed) drops the rest. Where ``first_observation`` is given, row
-    ``i`` of the held observation is the first observation of row ``i`` of the held episodes: a
-    row's observation does not depend on the other rows of its batch, so it is the one a reset
-    of that truck alone would compute.
+    :meth:`clear` (on a new seed) drops the rest. Where ``prepare`` is given, the pool also holds
+    ``prepare(episodes, key)`` for the ``key`` of the last :meth:`take`, row for row: a row's
+    preparation must not depend on the other rows of its batch (nor draw random numbers), so
+    it is the one a restart of that truck alone would compute. A take with another ``key``
+    prepares every held episode again.
 
     Args:
         draw: ``draw(k)`` -> ``k`` fresh episodes as state leaves ``[k, ...]``.
         size: episodes drawn per refill (more when one take asks for more).
-        first_observation: ``first_observation(leaves)`` -> their first observation
-            ``[k, ...]``, computed once per refill for the whole batch; ``None`` when the
-            observation depends on more than the drawn episode (e.g. a start curriculum).
+        prepare: :data:`Prepare`, or ``None`` to hand out the drawn episodes as they are.
     """
 
-    def __init__(
-        self,
-        draw: Callable[[int], Leaves],
-        size: int,
-        first_observation: Callable[[Leaves], Observation] | None = None,
-    ) -> None:
+    def __init__(self, draw: Callable[[int], Leaves], size: int, prepare: Prepare | None = None):
         self._draw = draw
         self._size = size
-        self._first_observation = first_observation
+        self._prepare = prepare
         self._episodes: Leaves | None = None
-        self._observation: Observation | None = None
+        #: ``(key, prepared episodes, their first observation)``, row for row with _episodes
+        self._ready: tuple[Hashable, Leaves, Observation] | None = None
 
     def clear(self) -> None:
         """Drop every held episode; the next take draws afresh."""
-        self._episodes = self._observation = None
+        self._episodes = self._ready = None
 
     def __len__(self) -> int:
         return 0 if self._episodes is None else next(iter(self._episodes.values())).shape[0]
 
-    def take(self, m: int) -> tuple[Leaves, Observation | None]:
-        """The next ``m`` episodes ``({state leaf key: [m, ...]}, first observation or None)``."""
-        episodes, observation = self._episodes, self._observation
+    def take(self, m: int, key: Hashable = None) -> tuple[Leaves, Observation | None]:
+        """The next ``m`` episodes ``({state leaf key: [m, ...]}, first observation)``, prepared
+        for ``key`` (as drawn, and no observation, without ``prepare``)."""
         if len(self) < m:
-            k = max(m, self._size)
-            fresh = self._draw(k)
-            fresh_obs = None if self._first_observation is None else self._first_observation(fresh)
-            if episodes is None:
-                episodes, observation = fresh, fresh_obs
+            fresh = self._draw(max(m, self._size))
+            if self._ready is not None and self._ready[0] == key:
+                leaves, obs = self._prepare(fresh, key)
+                self._ready = (key, _cat(self._ready[1], leaves), _cat(self._ready[2], obs))
             else:
-                episodes = {key: torch.cat((episodes[key], fresh[key])) for key in fresh}
-                if fresh_obs is not None:
-                    observation = {
-                        key: torch.cat((observation[key], fresh_obs[key])) for key in fresh_obs
-                    }
-        self._episodes = {key: v[m:] for key, v in episodes.items()}
-        if observation is None:
-            return {key: v[:m] for key, v in episodes.items()}, None
-        self._observation = {key: v[m:] for key, v in observation.items()}
-        taken_obs = {key: v[:m] for key, v in observation.items()}
-        return {key: v[:m] for key, v in episodes.items()}, taken_obs
+                self._ready = None
+            self._episodes = fresh if self._episodes is None else _cat(self._episodes, fresh)
+        taken, self._episodes = _split(self._episodes, m)
+        if self._prepare is None:
+            return taken, None
+        if self._ready is None or self._ready[0] != key:
+            self._ready = (key, *self._prepare(_cat(taken, self._episodes), key))
+        _, leaves, obs = self._ready
+        (leaves, rest), (obs, obs_rest) = _split(leaves, m), _split(obs, m)
+        self._ready = (key, rest, obs_rest)
+        return leaves, obs

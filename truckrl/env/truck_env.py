@@ -100,15 +100,11 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
             if self.config.compile
             else None
         )
-        # a task without a start curriculum keeps drawn episodes as they are: the pool then holds
-        # their first observation too, and a partial reset copies plain tensors and never
-        # builds a TensorDict or observes (see _restart)
+        # the pool holds its episodes as they start at the current difficulty, with their first
+        # observation: a partial reset then copies plain tensors and never builds a TensorDict
+        # or observes (see _restart); a task without a start curriculum prepares them once
         self._plain_reset = type(self.task).on_reset is Task.on_reset
-        self._pool = EpisodePool(
-            self._draw,
-            self.config.episode_pool,
-            self._first_observation if self._plain_reset else None,
-        )
+        self._pool = EpisodePool(self._draw, self.config.episode_pool, self._prepare)
         if seed is None:
             seed = int(torch.empty((), dtype=torch.int64).random_().item())
         self.set_seed(seed)
@@ -181,14 +177,23 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
         td = self.task.sample(k, self.rng, self.device)
         return dict(td.items(include_nested=True, leaves_only=True))
 
-    def _first_observation(self, leaves: Leaves) -> Observation:
-        """First observation of drawn episodes, the ``difficulty`` column left out: a task
-        without a start curriculum observes the same at every difficulty but that column, and
-        :meth:`_restart` adds each truck's own."""
-        zeros = torch.zeros(next(iter(leaves.values())).shape[0], device=self.device)
-        obs = self._observe_rows(self._flat_rows(leaves), zeros)
+    def _pool_key(self) -> float | None:
+        """What the pool's prepared episodes depend on: the difficulty (all trucks share it),
+        or nothing for a task without a start curriculum."""
+        return None if self._plain_reset else self._host_difficulty
+
+    def _prepare(self, leaves: Leaves, difficulty: float | None) -> tuple[Leaves, Observation]:
+        """Drawn episodes as they start at ``difficulty`` (:meth:`Task.on_reset`; ``None``: as
+        drawn) and their first observation, the ``difficulty`` column left out
+        (:meth:`_restart` adds each truck's own)."""
+        m = next(iter(leaves.values())).shape[0]
+        d = torch.full((m,), 0.0 if difficulty is None else difficulty, device=self.device)
+        if difficulty is not None:
+            td = self.task.on_reset(self._as_tensordict(leaves, m), d)
+            leaves = dict(td.items(include_nested=True, leaves_only=True))
+        obs = self._observe_rows(self._flat_rows(leaves), d)
         del obs["difficulty"]
-        return obs
+        return leaves, obs
 
     def _as_tensordict(self, leaves: Leaves, m: int) -> TensorDict:
         """State leaves ``{leaf key: [m, ...]}`` as a (nested) TensorDict ``[m]``, built from
@@ -229,26 +234,14 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
         """Start fresh episodes for the trucks ``idx`` (``[m]`` int64, ``m >= 1``) in the state
         and return their first observation ``{key: [m, ...]}``.
 
-        The episodes come from the pool in order and pass through :meth:`Task.on_reset` with the
-        trucks' difficulty; the observation comes from the pool where it holds one.
+        The episodes come from the pool in order, prepared for the trucks' difficulty
+        (:meth:`Task.on_reset` applied, the first observation computed: :meth:`_prepare`).
         """
         difficulty = self._difficulty[idx]
-        fresh, obs = self._pool.take(idx.numel())
-        if not self._plain_reset:
-            td = self.task.on_reset(self._as_tensordict(fresh, idx.numel()), difficulty)
-            fresh = dict(td.items(include_nested=True, leaves_only=True))
+        fresh, obs = self._pool.take(idx.numel(), self._pool_key())
         for key, value in fresh.items():
             self._state.get(key).index_put_((idx,), value)
         self._scene.update(self._state["segments"], self._state["mask"], idx)
-        if obs is None:
-            # fresh storage for what the observation reads: rows taken from the episode pool are
-            # slices whose storage offsets change from reset to reset, and the compiled
-            # observation of them guards on those offsets (it would compile again for each)
-            flat = self._flat_rows(fresh)
-            flat = {k: v.clone() for k, v in flat.items() if k != "params"} | {
-                "params": {k: v.clone() for k, v in flat["params"].items()}
-            }
-            return self._observe_rows(flat, difficulty)
         return {**obs, "difficulty": difficulty[:, None]}
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
@@ -271,10 +264,10 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
                 self._idle = ()  # a given state may hold anything
             else:
                 self._idle = self.task.idle_keys(self._host_difficulty)
-                fresh = self._as_tensordict(self._pool.take(n)[0], n)
+                fresh = self._as_tensordict(self._pool.take(n, self._pool_key())[0], n)
                 # fresh storage, not slices of the pool: the compiled step guards on the storage
-                # offsets of the state it reads (as the observation in _restart does)
-                self._state = self.task.on_reset(fresh, self._difficulty).clone()
+                # offsets of the state it reads
+                self._state = fresh.clone()
             self._scene.update(self._state["segments"], self._state["mask"])
             cols = dict(self._observe_fn(self._flat_state(), self._difficulty))
         else:
