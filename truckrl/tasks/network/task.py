@@ -101,7 +101,9 @@ SENSED = "sensed"
 #: Curb window state keys: the chain's curbs ``net_segments [N, E, 4]`` and ``net_mask [N, E]``
 #: (the scene's, in their slots) and each route stretch's window ``window [N, C, W]`` (curb
 #: slots) and ``window_valid [N, C, W]``; the step's LiDAR and collision read the window of the
-#: truck's stretch instead of every curb of the chain.
+#: truck's stretch instead of every curb of the chain. Invariant: a valid slot holds a curb of
+#: ``net_mask`` (:meth:`NetworkTask.on_reset` folds the curriculum's cut into both), so the step
+#: reads one mask instead of gathering ``net_mask`` through the window for every LiDAR beam.
 WINDOW_KEYS: tuple[str, ...] = ("net_segments", "net_mask", "window", "window_valid")
 
 
@@ -248,7 +250,7 @@ class NetworkTask(PoseGoal, Task):
             state["net_segments"] = state["segments"]
             state["net_mask"] = state["mask"].clone()
             state["window"] = torch.arange(e, device=dev).expand(n, 1, e).clone()
-            state["window_valid"] = torch.ones(n, 1, e, dtype=torch.bool, device=dev)
+            state["window_valid"] = state["mask"].unsqueeze(1).clone()
         if "route_points" not in keys:
             f = torch.linspace(0.0, 1.0, self.cfg.task.route.points, device=dev).view(1, -1, 1)
             a, b = state["pose"][:, None, :2], state["goal"][:, None, :2]
@@ -284,6 +286,9 @@ class NetworkTask(PoseGoal, Task):
         state["pose"] = torch.cat((start, torch.zeros_like(start[:, :1])), -1)
         state["mask"] = state["mask"] & (state["segment_block"] >= first_block.unsqueeze(-1))
         state["net_mask"] = state["net_mask"] & state["mask"]
+        window = state["window"]
+        cut = state["net_mask"].gather(1, window.flatten(1)).view_as(window)
+        state["window_valid"] = state["window_valid"] & cut
         K = state["block_type"].shape[1]
         lanes_per_block = state["tr_lanes"].shape[1] // K
         fb = first_block.unsqueeze(-1)
@@ -334,7 +339,7 @@ class NetworkTask(PoseGoal, Task):
         at = s["route_chunk"].view(n, 1, 1).expand(n, 1, w)
         idx = window.gather(1, at).squeeze(1)  # [n, w] curb slots
         curbs = s["net_segments"].gather(1, idx.unsqueeze(-1).expand(n, w, 4))
-        curb_mask = s["net_mask"].gather(1, idx) & valid.gather(1, at).squeeze(1)
+        curb_mask = valid.gather(1, at).squeeze(1)  # net_mask folded in (WINDOW_KEYS)
         if TRAFFIC_KEYS[0] in s:  # else no vehicle anywhere (idle_keys): the curbs alone
             seg, mask = traffic_segments(traffic_of(s))
             curbs, curb_mask = torch.cat((curbs, seg), 1), torch.cat((curb_mask, mask), 1)
