@@ -28,8 +28,8 @@ def _cat(a: dict, b: dict) -> dict:
     return {key: torch.cat((a[key], b[key])) for key in b}
 
 
-def _split(leaves: dict, m: int) -> tuple[dict, dict]:
-    return {k: v[:m] for k, v in leaves.items()}, {k: v[m:] for k, v in leaves.items()}
+def _rows(leaves: dict, lo: int, hi: int | None = None) -> dict:
+    return {k: v[lo:hi] for k, v in leaves.items()}
 
 
 class EpisodePool:
@@ -53,34 +53,52 @@ class EpisodePool:
         self._draw = draw
         self._size = size
         self._prepare = prepare
+        #: the held episodes are rows ``_pos:`` of ``_episodes`` (a take moves the cursor
+        #: instead of slicing every leaf twice)
         self._episodes: Leaves | None = None
+        self._pos = 0
         #: ``(key, prepared episodes, their first observation)``, row for row with _episodes
         self._ready: tuple[Hashable, Leaves, Observation] | None = None
 
     def clear(self) -> None:
         """Drop every held episode; the next take draws afresh."""
         self._episodes = self._ready = None
+        self._pos = 0
 
     def __len__(self) -> int:
-        return 0 if self._episodes is None else next(iter(self._episodes.values())).shape[0]
+        if self._episodes is None:
+            return 0
+        return next(iter(self._episodes.values())).shape[0] - self._pos
 
     def take(self, m: int, key: Hashable = None) -> tuple[Leaves, Observation | None]:
         """The next ``m`` episodes ``({state leaf key: [m, ...]}, first observation)``, prepared
         for ``key`` (as drawn, and no observation, without ``prepare``)."""
         if len(self) < m:
             fresh = self._draw(max(m, self._size))
-            if self._ready is not None and self._ready[0] == key:
+            ready = self._ready
+            if ready is not None and ready[0] == key:
                 leaves, obs = self._prepare(fresh, key)
-                self._ready = (key, _cat(self._ready[1], leaves), _cat(self._ready[2], obs))
+                ready = (
+                    key,
+                    _cat(_rows(ready[1], self._pos), leaves),
+                    _cat(_rows(ready[2], self._pos), obs),
+                )
             else:
-                self._ready = None
-            self._episodes = fresh if self._episodes is None else _cat(self._episodes, fresh)
-        taken, self._episodes = _split(self._episodes, m)
+                ready = None
+            held = (
+                fresh if self._episodes is None else _cat(_rows(self._episodes, self._pos), fresh)
+            )
+            self._episodes, self._ready, self._pos = held, ready, 0
+        lo, hi = self._pos, self._pos + m
+        self._pos = hi
         if self._prepare is None:
-            return taken, None
+            return _rows(self._episodes, lo, hi), None
         if self._ready is None or self._ready[0] != key:
-            self._ready = (key, *self._prepare(_cat(taken, self._episodes), key))
+            # fresh storage from row lo on: a compiled observation guards on storage offsets
+            held = self._episodes
+            if lo > 0:
+                held = {k: v[lo:].clone() for k, v in held.items()}
+            self._episodes, self._pos, lo, hi = held, m, 0, m
+            self._ready = (key, *self._prepare(held, key))
         _, leaves, obs = self._ready
-        (leaves, rest), (obs, obs_rest) = _split(leaves, m), _split(obs, m)
-        self._ready = (key, rest, obs_rest)
-        return leaves, obs
+        return _rows(leaves, lo, hi), _rows(obs, lo, hi)
