@@ -482,7 +482,8 @@ def test_curriculum_keeps_the_draws_feasibility_verdict(sampled):
 def test_curriculum_starts_near_the_goal_then_routes_through_more_junctions():
     """At difficulty 0 (level 0: 40 m, no traffic) about half the routes are 40 m from start to
     goal (55 % of 1,024 at seed 1; the candidates reach 32 m either side; a route through no or one
-    junction), no vehicle drives, and the blocks behind the start are out of the scene; at 1.5
+    junction), no vehicle drives, and the blocks behind the start are out of the scene (and of
+    every curb window the step reads); at 1.5
     (the whole route through 1 junction) every route has 3 blocks; at 3 (2 junctions, every
     vehicle) 5 blocks and some traffic."""
     env = network_env(n=64, seed=1)
@@ -497,6 +498,10 @@ def test_curriculum_starts_near_the_goal_then_routes_through_more_junctions():
     first = st["level_blocks"][torch.arange(64), 0].unsqueeze(-1)
     assert not (st["mask"] & (st["segment_block"] < first)).any()
     assert (st["mask"] & (st["segment_block"] == first)).any(-1).all()
+    # nor in any stretch's curb window, which the step's LiDAR and collision test read
+    block = st["segment_block"].gather(1, st["window"].flatten(1)).view_as(st["window"])
+    assert not (st["window_valid"] & (block < first.unsqueeze(-1))).any()
+    assert (st["window_valid"] & (block == first.unsqueeze(-1))).any()
     env.set_difficulty(1.5)
     env.reset()
     st = env.get_state()
