@@ -178,7 +178,9 @@ class Task:
         :class:`~truckrl.env.TruckEnv` calls it on every episode it draws at a reset (not on a
         state given to ``set_state``). A task with a start curriculum moves the start here; it
         must keep the state complete (errors recomputed) and must draw no random numbers (the
-        episodes' draws come from :meth:`sample`), so a seed still fixes every episode.
+        episodes' draws come from :meth:`sample`), so a seed still fixes every episode. It sets
+        new tensors and never writes into the given ones: the env's episode pool keeps the drawn
+        episodes to prepare them again when the difficulty changes.
         """
         return state
 
