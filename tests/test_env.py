@@ -178,12 +178,16 @@ def test_partial_reset_observation_is_the_restarted_state_observed():
     assert checked >= n
 
 
-def test_restart_after_a_difficulty_change_starts_at_the_new_difficulty():
+@pytest.mark.parametrize(
+    "task", [{"name": "dock"}, {"name": "network"}], ids=lambda task: task["name"]
+)
+def test_restart_after_a_difficulty_change_starts_at_the_new_difficulty(task):
     # Independent answer: a twin of the same seed at the new difficulty from the start draws the
     # same episodes in the same order, so its restarts must match bit for bit. The pool prepares
-    # its episodes (the dock task's start curriculum) for the difficulty of the first take; a
-    # pool that kept them after set_difficulty would restart the trucks at the old one.
-    cfg = {"task": {"name": "dock"}, "max_steps": 1}
+    # its episodes (a task's start curriculum) for the difficulty of the first take; a pool that
+    # kept them after set_difficulty, or a curriculum that wrote into the drawn episodes, would
+    # restart the trucks at the old one.
+    cfg = {"task": task, "max_steps": 1, "episode_pool": 16}
     changed, twin, old = (make(4, seed=6, **cfg) for _ in range(3))
     action = torch.zeros(4, 2)
     outs = []
