@@ -44,9 +44,12 @@ def test_gpu_demos_experiment_is_demos_with_a_gpu_batch():
     assert (gpu.device, gpu.demos.device) == ("cuda", None)  # the planner on the GPU too
     assert (gpu.collector.num_envs, gpu.collector.steps_per_env) == (4096, 64)
     assert (gpu.demos.bc_batch, demos.demos.bc_batch) == (4096, 1024)
+    # held-out checks by frames, half as often per frame as on the CPU (4x the batch)
+    assert (gpu.log.eval_interval_frames, demos.log.eval_interval_frames) == (10**7, 5 * 10**6)
     # everything else is experiment=demos, the training scenes (all crossings) included
     on_cpu = compose_config("train", "experiment=gpu_demos", "device=cpu",
-                            "collector.num_envs=1024", "demos.bc_batch=1024")  # fmt: skip
+                            "collector.num_envs=1024", "demos.bc_batch=1024",
+                            "log.eval_interval_frames=5000000")  # fmt: skip
     assert to_config(TrainConfig, on_cpu) == to_config(TrainConfig, demos)
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match=r"^device = 'cuda' but torch sees no CUDA GPU"):
@@ -129,8 +132,10 @@ def test_demos_experiment_is_fast_plus_its_values():
     assert demos.env.task.scene.crossing_prob == fast.env.task.scene.crossing_prob == 0.7
     assert replace(demos.env, lidar=fast.env.lidar, task=fast.env.task) == fast.env
     assert (demos.stop_difficulty, fast.stop_difficulty) == (None, 6.0)
-    for part in ("collector", "log", "checkpoint"):
+    for part in ("collector", "checkpoint"):
         assert getattr(demos, part) == getattr(fast, part), part
+    assert (demos.log.eval_interval_frames, fast.log.eval_interval_frames) == (5 * 10**6, None)
+    assert replace(demos.log, eval_interval_frames=None) == fast.log
     assert replace(demos.model, max_std=None) == fast.model
     assert demos.ppo.lr == fast.ppo.lr and demos.env.compile == fast.env.compile
 

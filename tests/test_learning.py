@@ -58,6 +58,7 @@ def test_the_preset_reaches_its_difficulty_in_a_fixed_frame_budget(
         f"hydra.run.dir={run}",
         "log.video_interval=0",
         "log.eval_interval_min=0",  # no held-out checks: frames only
+        "log.eval_interval_frames=null",  # (experiment=demos checks by frames)
         timeout=1800,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]

@@ -47,8 +47,14 @@ def scalar_steps(run_dir: Path, tag: str = "perf/fps") -> list[int]:
     return [e.step for e in _accumulator(run_dir).Scalars(tag)]
 
 
-#: Held-out checks after every iteration (due after 0.06 s), on 4 short scenes.
-EVALS = ["log.eval_interval_min=0.001", "log.eval_episodes=4", "env.max_steps=20"]
+#: Held-out checks after every iteration (due after 0.06 s), on 4 short scenes (by minutes:
+#: experiment=demos' own cadence counts frames).
+EVALS = [
+    "log.eval_interval_min=0.001",
+    "log.eval_interval_frames=null",
+    "log.eval_episodes=4",
+    "env.max_steps=20",
+]
 
 
 @pytest.fixture(scope="module")
@@ -352,6 +358,7 @@ def test_demos_experiment_is_the_default():
     assert tc.collector.frames_per_batch == 1024 * 64 and tc.env.compile
     assert (tc.ppo.num_epochs, tc.ppo.num_minibatches, tc.ppo.lr) == (5, 16, 3e-4)
     assert (tc.demos.episodes, tc.demos.bc_coeff, tc.stop_difficulty) == (600, 1.0, None)
+    assert tc.log.eval_interval_frames == 5_000_000  # held-out checks (and best.pt) by frames
 
 
 def test_difficulty_reaches_every_parallel_worker():
