@@ -264,6 +264,40 @@ def test_a_vehicle_yields_at_a_crossing_while_the_truck_is_in_it():
     assert max(float(t.s[0, 0]) for t in free) > 30.0 + 5.0
 
 
+def test_a_vehicle_waiting_to_reappear_inside_a_zone_holds_nobody_at_it():
+    """A vehicle off the road whose home lane starts inside a junction zone, kept off by the
+    truck near that start, is no rival at the zone: a later slot drives through the crossing."""
+    w = 9.0
+    net = network_from_blocks(
+        {
+            "road_width": w,
+            "blocks": [
+                {"type": "straight", "length": 40},
+                {"type": "crossing", "angle_deg": 90, "arm": 20},
+            ],
+        }
+    )
+    # the crossing is centred on (60, 0); lane 11 runs north at x = 62.25 from y = -20, so its
+    # reappearance spot (2.25 m in) is 17.75 m from the centre, inside the zone's reach
+    # (0.5 w sqrt(2) + zone_margin + 2.25 = 20.6 m at zone_margin 12); lane 0 runs east on the
+    # straight into the crossing
+    cfg = TrafficConfig(zone_margin=12.0)
+    assert math.hypot(2.25, 17.75) < 0.5 * w * math.sqrt(2.0) + 12.0 + 2.25
+    tr = place_vehicles(
+        net, cfg, torch.tensor([[11, 0]]), torch.tensor([[30.0, 5.0]]),
+        torch.tensor([[4.5, 4.5]]), torch.tensor([[1.8, 1.8]]), torch.tensor([[10.0, 10.0]]),
+    )  # fmt: skip
+    tr = replace(tr, waiting=torch.tensor([[True, False]]))
+    # the truck, a 10 m box standing south of the crossing: 27 m from slot 0's spot (within
+    # appear_clearance + 5 m: slot 0 stays off), 45 m from the centre (not in the zone), 40 m
+    # beside slot 1's lane (not in its corridor)
+    ego = torch.tensor([[[62.25, -45.0, 0.0, 1.0, 5.0, 1.25]]])
+    assert math.hypot(0.0, 45.0 - 17.75) < 5.0 + cfg.appear_clearance
+    states = rollout(net, cfg, tr, 200, ego)
+    assert all(bool(t.waiting[0, 0]) for t in states)  # slot 0 never reappears
+    assert max(float(poses(net, t)[0][0, 1, 0]) for t in states) > 60.0 + 0.5 * w  # slot 1 crossed
+
+
 def test_at_an_open_road_end_a_vehicle_leaves_and_reappears_on_its_home_lane():
     net, cfg = straight(40.0), TrafficConfig()
     tr = place_vehicles(net, cfg, *(t.unsqueeze(0) for t in two(0, 30.0, 4.0, 1.8, 10.0)))

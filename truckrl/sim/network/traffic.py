@@ -19,8 +19,9 @@ networks or vehicles, no host sync), in four parts:
    centre is nearer than the zone's radius plus its half length. A vehicle may enter a zone
    only while no other vehicle and no ego box (the truck's tractor or trailer, its centre nearer
    than the zone's radius plus its half length) is in it and no vehicle of lower slot index
-   enters it in the same step; otherwise it holds where it is (and the IDM has braked it
-   towards the edge). Without the truck in the rule a car entered a junction the truck was
+   enters it in the same step (one the safety filter holds anyway, or one that cannot reappear
+   yet, enters nothing); otherwise it holds where it is (and the IDM has braked it towards the
+   edge). Without the truck in the rule a car entered a junction the truck was
    crossing and stopped in its swept path, where the truck could not avoid it.
 3. **Lane ends**: a vehicle passing its lane's end continues on the lane that starts there
    (the next block's lane across a joint); where none does (an open road end of the network, or
@@ -588,12 +589,7 @@ def step_traffic(
     if ego is not None:  # nor where the truck is near: it could not stop for it
         gap = torch.hypot(xn.unsqueeze(1) - e[0].unsqueeze(0), yn.unsqueeze(1) - e[1].unsqueeze(0))
         crowded = crowded | (gap < e[4].unsqueeze(0) + cfg.appear_clearance).any(1)
-    # ---- junction yield: enter a zone only when it is empty and no lower slot enters it
-    zd_new = torch.stack((xn.unsqueeze(1) - zcx, yn.unsqueeze(1) - zcy), -1).norm(dim=-1)
-    enters = zmask & there.unsqueeze(1) & (zd_new < reach) & ~inside  # [M, Z, n]
-    rival = enters.cumsum(0) > enters.long()  # a lower slot enters the same zone
-    wait = (enters & (held_by | rival)).any(1)
-    # ---- safety filter (module doc)
+    # ---- safety filter (module doc), the parts that hold a vehicle whatever the others do
     g = cfg.safety_margin
     new_i = tuple(f.unsqueeze(1) for f in (xn, yn, cn, snn, half, hw))
     hit_now = (
@@ -601,13 +597,21 @@ def step_traffic(
         & on_p.unsqueeze(0)
         & ~eye
     )
+    stuck = hit_now.any(1) | (appear & crowded)
+    if ego is not None:
+        stuck = stuck | _overlap_t(new_i, tuple(f.unsqueeze(0) for f in e), g).any(1)
+    # ---- junction yield: enter a zone only when it is empty and no lower slot enters it; a
+    # vehicle held anyway is no rival (one waiting to reappear at a lane start inside a zone
+    # would otherwise hold every higher slot at that zone for as long as it waits: a gridlock)
+    zd_new = torch.stack((xn.unsqueeze(1) - zcx, yn.unsqueeze(1) - zcy), -1).norm(dim=-1)
+    enters = zmask & there.unsqueeze(1) & (zd_new < reach) & ~inside  # [M, Z, n]
+    going = (enters & ~stuck.unsqueeze(1)).long()
+    rival = going.cumsum(0) > going  # a lower slot enters the same zone
+    wait = (enters & (held_by | rival)).any(1)
     both = there.unsqueeze(1) & there.unsqueeze(0) & ~eye
     hit_new = _overlap_t(new_i, tuple(f.unsqueeze(0) for f in (xn, yn, cn, snn, half, hw)), g)
     hit_new = hit_new & both
-    blocked = hit_now.any(1) | wait | (appear & crowded)
-    if ego is not None:
-        blocked = blocked | _overlap_t(new_i, tuple(f.unsqueeze(0) for f in e), g).any(1)
-    blocked = blocked & there
+    blocked = (stuck | wait) & there
     # i moves only if, for every j its new box meets, i < j or j is held anyway
     lose = (hit_new & ~(lower.transpose(0, 1) | blocked.unsqueeze(0))).any(1)
     hold = ~act | blocked | lose
