@@ -151,7 +151,8 @@ class DemosConfig:
     docs/training.md, docs/reversing.md). Skipped on resume.
 
     With ``bc_coeff > 0`` the demonstrations also stay in the PPO update as a cloning term whose
-    weight decays to 0 over ``bc_frames`` (kept in ``<run dir>/demos.pt`` for a resume).
+    weight decays to 0 over ``bc_frames`` (kept in ``<run dir>/demos.pt`` for a resume). With
+    ``dagger_rounds > 0`` they include the rounds' labelled states of the clone's own drives.
     """
 
     episodes: int = param(
@@ -203,6 +204,20 @@ class DemosConfig:
     )
     bc_batch: int = param(
         1024, lo=1, hi=10_000_000, unit="samples", doc="demonstration samples per PPO minibatch"
+    )
+    dagger_rounds: int = param(
+        0,
+        lo=0,
+        hi=1000,
+        doc="DAgger rounds after the first clone (source driver): the clone drives dagger_episodes "
+        "new scenes, the task's demonstrator labels every state it visits, and the clone is fit "
+        "again to all samples so far (0: the demonstrations only)",
+    )
+    dagger_episodes: int = param(
+        1024, lo=1, hi=1_000_000, unit="scenes", doc="scenes the clone drives in each round"
+    )
+    dagger_epochs: int = param(
+        10, lo=1, hi=100_000, doc="behaviour-cloning passes over all samples after each round"
     )
 
 
@@ -285,9 +300,26 @@ class TrainConfig:
         from truckrl.tasks.config import with_env_overrides
 
         with_env_overrides(self.env, self.train_env, fixed=True, where="train_env")
+        self.check_dagger()
         if self.resume is None:  # a resume's stop rules may come from its run: checked merged
             self.check_stops()
         self.ppo.check_batch(self.collector.frames_per_batch)
+
+    def check_dagger(self) -> None:
+        """Refuse in one line DAgger rounds that would not run or have no labeller: they need
+        demonstrations (``demos.episodes > 0``) from the task's own demonstrator, whose
+        ``expert.py`` has ``labelled``."""
+        d = self.demos
+        if d.dagger_rounds == 0:
+            return
+        if d.episodes == 0 or d.source != "driver":
+            raise ConfigError(
+                f"demos.dagger_rounds = {d.dagger_rounds} needs demos.episodes > 0 and "
+                f"demos.source = driver (got {d.episodes} and {d.source!r}; or set it to 0)"
+            )
+        from truckrl.planning.experts import scripted_labels
+
+        scripted_labels(self.env.task.name)
 
     def check_stops(self) -> None:
         """Refuse in one line a run that sets neither ``total_frames`` nor ``max_minutes``."""

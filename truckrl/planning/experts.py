@@ -2,7 +2,7 @@
 
 The planner and the demonstrations never name a task; they import the module ``expert`` of the
 task's folder (``truckrl.tasks.<name>.expert``, or ``<name>.expert`` for a task outside the
-package, named by its dotted path) and read two optional attributes of it (the contract is in
+package, named by its dotted path) and read three optional attributes of it (the contract is in
 :mod:`truckrl.planning`). A folder without ``expert.py`` has neither.
 """
 
@@ -19,6 +19,8 @@ from truckrl.tasks.registry import task_package
 STEERING_PRIOR = "steering_prior"
 #: Expert attribute: ``demonstrations(env_cfg, episodes, seed, difficulty) -> (solved, samples)``.
 DEMONSTRATIONS = "demonstrations"
+#: Expert attribute: ``labelled(env_cfg, episodes, seed, difficulty, act) -> (solved, samples)``.
+LABELLED = "labelled"
 
 
 def task_expert(name: str) -> ModuleType | None:
@@ -61,3 +63,13 @@ def scripted_demonstrations(name: str) -> Callable:
         ConfigError: the task's folder has no expert, or its expert no ``demonstrations``.
     """
     return _attribute(name, DEMONSTRATIONS, "demos.source = driver", "demos.source=planner")
+
+
+def scripted_labels(name: str) -> Callable:
+    """Task ``name``'s demonstrator as a labeller of a policy's own states
+    (``demos.dagger_rounds > 0``).
+
+    Raises:
+        ConfigError: the task's folder has no expert, or its expert no ``labelled``.
+    """
+    return _attribute(name, LABELLED, "demos.dagger_rounds > 0", "demos.dagger_rounds=0")

@@ -221,9 +221,12 @@ def bootstrap(
         seed: behaviour-cloning shuffle seed.
         progress: ``progress(done, total)`` after every planner iteration, or None.
 
+    With ``dc.dagger_rounds > 0`` (source "driver") :func:`dagger` follows the first clone.
+
     Returns:
         ``(summary, samples)``: a JSON-ready summary (scenes, source, the demonstrator's success
-        rate, episodes kept, samples, losses, seconds) and the ``[M]`` samples it cloned.
+        rate, episodes kept, their samples, losses, the DAgger rounds, seconds) and the ``[M]``
+        samples it cloned (the rounds' included).
 
     Raises:
         ValueError: no episode succeeded (nothing to clone), or ``source`` "driver" with a task
@@ -261,6 +264,10 @@ def bootstrap(
             env_cfg, states[ok.to(states.device)].cpu(), actions, dc.difficulty
         )
     losses = behaviour_clone(ac, samples.to(device), dc.epochs, dc.lr, dc.batch_size, seed=seed)
+    shown = int(samples.batch_size[0])  # the demonstrations' own samples
+    rounds = []
+    if dc.dagger_rounds > 0:
+        samples, rounds = dagger(ac, env_cfg, dc, samples, device, seed)
     set_action_std(ac, dc.std)
     summary = {
         "scenes": dc.episodes,
@@ -269,10 +276,68 @@ def bootstrap(
         "source": dc.source,
         "planner_success_rate": success.float().mean().item(),
         "plans_kept": kept,
-        "samples": int(samples.batch_size[0]),
+        "samples": shown,
         "epochs": dc.epochs,
         "losses": losses,
         "plan_seconds": t_plan,
+        "dagger": rounds,
         "seconds": time.perf_counter() - t0,
     }
     return summary, samples
+
+
+def dagger(
+    ac: ActorCritic,
+    env_cfg: EnvConfig,
+    dc: Any,
+    samples: TensorDict,
+    device: torch.device | str = "cpu",
+    seed: int = 0,
+) -> tuple[TensorDict, list[dict[str, Any]]]:
+    """``dc.dagger_rounds`` rounds of DAgger (Ross, Gordon and Bagnell 2011) on the cloned ``ac``.
+
+    Each round ``r`` (1, 2, ...) lets ``ac``'s mean action drive the ``dc.dagger_episodes``
+    scenes of seed ``dc.seed + r`` at ``dc.difficulty`` (on the CPU), labels every state it
+    visits with the task's demonstrator's action (its expert's ``labelled``), adds those samples
+    to ``samples`` and fits the actor to all of them for ``dc.dagger_epochs`` passes, from where
+    it stands. A clone's mistakes take it to states the demonstrations never show; the labels
+    teach it the way back.
+
+    Returns:
+        ``(samples, rounds)``: all samples (``[M]``, the demonstrations first) and per round a
+        JSON-ready record (scene seed, the clone's success rate on its scenes before the fit,
+        samples added, losses, seconds).
+    """
+    import time
+
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from truckrl.planning import scripted_labels
+
+    labelled = scripted_labels(env_cfg.task.name)
+    actor = ac.actor
+
+    def act(td: TensorDict) -> Tensor:
+        obs = td.select(OBS_KEY, LIDAR_KEY).to(device)
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            return actor(obs)["action"].cpu()
+
+    rounds = []
+    for r in range(1, dc.dagger_rounds + 1):
+        t0 = time.perf_counter()
+        solved, fresh = labelled(env_cfg, dc.dagger_episodes, dc.seed + r, dc.difficulty, act)
+        samples = torch.cat([samples.cpu(), fresh.cpu()])
+        losses = behaviour_clone(
+            ac, samples.to(device), dc.dagger_epochs, dc.lr, dc.batch_size, seed=seed + r
+        )
+        rounds.append(
+            {
+                "seed": dc.seed + r,
+                "scenes": dc.dagger_episodes,
+                "clone_success_rate": solved.float().mean().item(),
+                "samples_added": int(fresh.batch_size[0]),
+                "losses": losses,
+                "seconds": time.perf_counter() - t0,
+            }
+        )
+    return samples, rounds

@@ -447,4 +447,8 @@ def clone_demonstrations(ac: Any, tc: Any, env: Any) -> tuple[dict, Any]:
     log.info(f"demonstrations: {demos['plans_kept']} of {dc.episodes} scenes solved, "
              f"{demos['samples']:,} samples, action MSE {demos['losses'][0]:.4f} -> "
              f"{demos['losses'][-1]:.4f}, {demos['seconds'] / 60:.1f} min")  # fmt: skip
+    for r, d in enumerate(demos["dagger"], 1):
+        log.info(f"DAgger round {r}: the clone solved {d['clone_success_rate']:.1%} of "
+                 f"{d['scenes']} scenes, {d['samples_added']:,} states labelled, action MSE "
+                 f"{d['losses'][-1]:.4f}, {d['seconds'] / 60:.1f} min")  # fmt: skip
     return demos, samples

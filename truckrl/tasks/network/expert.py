@@ -18,13 +18,17 @@ through the chain's junctions) forwards, with privileged knowledge of the traffi
 
 :func:`demonstrations` (``demos.source=driver``) drives held-out scenes with it in an eager env
 and keeps the successful episodes: what :func:`truckrl.rl.imitation.bootstrap` clones.
+:func:`labelled` (``demos.dagger_rounds``) lets a policy drive instead and keeps every state it
+visits with the action the driver would have taken there (DAgger: Ross, Gordon and Bagnell 2011,
+"A Reduction of Imitation Learning and Structured Prediction to No-Regret Online Learning"): the
+clone then learns to recover from its own mistakes, which the driver's clean episodes never show.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -133,15 +137,22 @@ def drive(
     difficulty: float,
     driver: RouteDriver | None = None,
     record: bool = True,
+    act: Callable[[TensorDict], Tensor] | None = None,
 ) -> tuple[dict[str, Tensor], TensorDict | None]:
-    """Drive ``states`` (``[E]`` network start states) with ``driver`` through an eager env.
+    """Drive ``states`` (``[E]`` network start states) through an eager env: with ``driver``,
+    or with ``act`` where given (the driver then only labels).
+
+    Args:
+        act: ``act(td) -> [E, 2]`` actions in ``[-1, 1]`` from the env's tensordict
+            (``observation``, ``lidar``), e.g. a policy's mean action; None: the driver drives.
 
     Returns:
         ``(result, samples)``: ``result`` ``[E]`` per episode: the :data:`OUTCOMES` (bool),
         the :data:`ERRORS` at its last step, ``steps`` and ``to_go`` (the route arc length [m]
         from the truck to the goal before its last step); ``samples`` ``[M]`` with
-        "observation", "lidar" and "action" of every step of every successful episode (None
-        without ``record``).
+        "observation", "lidar" and the driver's "action" of every step: of every successful
+        episode when the driver drives, of every episode when ``act`` does (None without
+        ``record``).
     """
     driver = driver or RouteDriver()
     e = int(states.batch_size[0])
@@ -157,9 +168,10 @@ def drive(
     rows: list[tuple[Tensor, Tensor, Tensor, Tensor]] = []
     for _ in range(cfg.max_steps):
         s = env.get_state()
-        action = setpoint_action(*driver.setpoints(s), s, cfg.control, cfg.dt)
+        label = setpoint_action(*driver.setpoints(s), s, cfg.control, cfg.dt)
         if record:
-            rows.append((alive.clone(), td[OBS_KEY], td[LIDAR_KEY], action))
+            rows.append((alive.clone(), td[OBS_KEY], td[LIDAR_KEY], label))
+        action = label if act is None else act(td).clamp(-1.0, 1.0)
         nxt = env.step(td.set("action", action))["next"]
         done = nxt["done"].squeeze(-1)
         steps += alive.long()
@@ -179,7 +191,7 @@ def drive(
     result = {**out, **err, "steps": steps, "to_go": to_go}
     if not record:
         return result, None
-    samples = kept_samples(rows, out["success"])
+    samples = kept_samples(rows, out["success"] if act is None else torch.ones_like(alive))
     return result, samples
 
 
@@ -196,4 +208,24 @@ def demonstrations(
     """
     states = held_out_states(env_cfg, episodes, seed, "cpu", difficulty=difficulty)
     result, samples = drive(env_cfg, states, difficulty)
+    return result["success"], samples
+
+
+def labelled(
+    env_cfg: EnvConfig,
+    episodes: int,
+    seed: int,
+    difficulty: float,
+    act: Callable[[TensorDict], Tensor],
+) -> tuple[Tensor, TensorDict]:
+    """The driver's labels on a policy's own states (``demos.dagger_rounds``): ``act`` drives
+    the ``episodes`` held-out scenes of ``seed`` at ``difficulty`` (as :func:`drive`'s ``act``),
+    and every state it visits, up to each episode's end, is kept with the driver's action.
+
+    Returns:
+        ``(solved [E] bool, samples [M])``: which episodes ``act`` solved, and "observation",
+        "lidar" and the driver's "action" of every step of every episode.
+    """
+    states = held_out_states(env_cfg, episodes, seed, "cpu", difficulty=difficulty)
+    result, samples = drive(env_cfg, states, difficulty, act=act)
     return result["success"], samples
