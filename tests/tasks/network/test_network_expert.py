@@ -1,7 +1,8 @@
 """The network task's scripted route driver (truckrl/tasks/network/expert.py): its speed rule
 for a vehicle on the route against hand-computed gaps, the route samples a vehicle covers
 against a numpy point-in-polygon oracle, its success on the first curriculum level, and the
-demonstrations ``demos.source=driver`` clones."""
+demonstrations ``demos.source=driver`` clones, and the labels it gives a policy's own states
+(DAgger, ``demos.dagger_rounds``)."""
 
 from __future__ import annotations
 
@@ -12,10 +13,11 @@ import pytest
 import torch
 
 from tests.sim.network.test_traffic import corners
-from truckrl.env import LIDAR_KEY, OBS_KEY
+from truckrl.env import LIDAR_KEY, OBS_KEY, TruckEnv
 from truckrl.planning import held_out_states
+from truckrl.planning.controller import setpoint_action
 from truckrl.tasks import EnvConfig
-from truckrl.tasks.network.expert import RouteDriver, _covered, demonstrations, drive
+from truckrl.tasks.network.expert import RouteDriver, _covered, demonstrations, drive, labelled
 from truckrl.tasks.network.task import empty_traffic
 
 WHEELBASE, FRONT = 4.0, 1.4  # m: the truck's rear axle to its front bumper is 5.4 m
@@ -131,3 +133,33 @@ def test_demonstrations_are_what_the_policy_sees():
     assert samples[LIDAR_KEY].shape[-1] == cfg.lidar.num_beams
     a = samples["action"]
     assert a.abs().max() <= 1.0 and a.shape[-1] == 2
+
+
+def test_labelled_states_are_the_policys_own_with_the_drivers_actions():
+    """``labelled``: a policy (here one fixed action: creep and steer left) drives; every state
+    it visits is kept, of failed episodes too, in step order, with the action the driver would
+    take there, not the policy's. Checked against a replay of the same scenes by hand."""
+    cfg = EnvConfig(task={"name": "network"}, max_steps=30, episode_pool=16)
+    fixed = torch.tensor([0.3, 0.6])
+    solved, samples = labelled(cfg, 6, 99991, 1.0, lambda td: fixed.expand(td.shape[0], 2))
+    assert solved.shape == (6,) and not solved.any()  # 30 steps reach no goal
+    states = held_out_states(cfg, 6, 99991, "cpu", difficulty=1.0)
+    env = TruckEnv(num_envs=6, config=cfg, seed=0)
+    env.set_difficulty(1.0)
+    td = env.set_state(states.clone())
+    alive = torch.ones(6, dtype=torch.bool)
+    obs, lidar, want = [], [], []
+    for _ in range(cfg.max_steps):
+        s = env.get_state()
+        label = setpoint_action(*RouteDriver().setpoints(s), s, cfg.control, cfg.dt)
+        obs.append(td[OBS_KEY][alive])
+        lidar.append(td[LIDAR_KEY][alive])
+        want.append(label[alive])
+        td = env.step(td.set("action", fixed.expand(6, 2).clone()))["next"]
+        alive &= ~td["done"].squeeze(-1)
+    env.close()
+    assert samples.batch_size[0] == sum(len(o) for o in obs)
+    assert torch.equal(samples[OBS_KEY], torch.cat(obs))
+    assert torch.equal(samples[LIDAR_KEY], torch.cat(lidar))
+    assert torch.equal(samples["action"], torch.cat(want))
+    assert not torch.isclose(samples["action"], fixed).all(-1).any()  # never the policy's
