@@ -63,8 +63,11 @@ def test_a_round_adds_the_clones_own_states_and_refits_to_all():
 
 
 def test_bootstrap_runs_the_rounds_and_returns_every_sample():
-    summary, samples = bootstrap(fresh_actor_critic(), CFG, DemosConfig(**DEMOS, dagger_rounds=2))
+    told = []
+    dc = DemosConfig(**DEMOS, dagger_rounds=2)
+    summary, samples = bootstrap(fresh_actor_critic(), CFG, dc, on_round=lambda *a: told.append(a))
     rounds = summary["dagger"]
+    assert told == list(enumerate(rounds, 1))  # each round reported as it ends
     assert [r["seed"] for r in rounds] == [99992, 99993]
     assert all(r["scenes"] == 3 and r["samples_added"] > 0 for r in rounds)
     added = sum(r["samples_added"] for r in rounds)

@@ -206,6 +206,7 @@ def bootstrap(
     device: torch.device | str = "cpu",
     seed: int = 0,
     progress: Any = None,
+    on_round: Any = None,
 ) -> tuple[dict[str, Any], TensorDict]:
     """Plan ``dc.episodes`` scenes of seed ``dc.seed`` (``dc.source`` "planner"; "driver":
     drive them with the task's scripted demonstrator, its folder's ``expert.demonstrations``),
@@ -220,6 +221,7 @@ def bootstrap(
         device: where ``ac`` is and the cloning runs.
         seed: behaviour-cloning shuffle seed.
         progress: ``progress(done, total)`` after every planner iteration, or None.
+        on_round: ``on_round(r, record)`` after every DAgger round (:func:`dagger`), or None.
 
     With ``dc.dagger_rounds > 0`` (source "driver") :func:`dagger` follows the first clone.
 
@@ -267,7 +269,7 @@ def bootstrap(
     shown = int(samples.batch_size[0])  # the demonstrations' own samples
     rounds = []
     if dc.dagger_rounds > 0:
-        samples, rounds = dagger(ac, env_cfg, dc, samples, device, seed)
+        samples, rounds = dagger(ac, env_cfg, dc, samples, device, seed, on_round)
     set_action_std(ac, dc.std)
     summary = {
         "scenes": dc.episodes,
@@ -293,6 +295,7 @@ def dagger(
     samples: TensorDict,
     device: torch.device | str = "cpu",
     seed: int = 0,
+    on_round: Any = None,
 ) -> tuple[TensorDict, list[dict[str, Any]]]:
     """``dc.dagger_rounds`` rounds of DAgger (Ross, Gordon and Bagnell 2011) on the cloned ``ac``.
 
@@ -302,6 +305,8 @@ def dagger(
     to ``samples`` and fits the actor to all of them for ``dc.dagger_epochs`` passes, from where
     it stands. A clone's mistakes take it to states the demonstrations never show; the labels
     teach it the way back.
+
+    ``on_round(r, record)``, where given, is called with each round's record as it ends.
 
     Returns:
         ``(samples, rounds)``: all samples (``[M]``, the demonstrations first) and per round a
@@ -340,4 +345,6 @@ def dagger(
                 "seconds": time.perf_counter() - t0,
             }
         )
+        if on_round is not None:
+            on_round(r, rounds[-1])
     return samples, rounds

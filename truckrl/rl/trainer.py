@@ -439,16 +439,17 @@ def clone_demonstrations(ac: Any, tc: Any, env: Any) -> tuple[dict, Any]:
             last[0] = time.monotonic()
             log.info(f"  planner: {done}/{total} scenes")
 
+    def on_round(r: int, d: dict) -> None:
+        log.info(f"DAgger round {r}: the clone solved {d['clone_success_rate']:.1%} of "
+                 f"{d['scenes']} scenes, {d['samples_added']:,} states labelled, action MSE "
+                 f"{d['losses'][-1]:.4f}, {d['seconds'] / 60:.1f} min")  # fmt: skip
+
     try:
-        demos, samples = bootstrap(ac, tc.env, dc, tc.device, tc.seed, progress)
+        demos, samples = bootstrap(ac, tc.env, dc, tc.device, tc.seed, progress, on_round)
     except ValueError as e:
         env.close()  # the workers, before the one-line error
         raise ConfigError(f"demos: {e}") from None
     log.info(f"demonstrations: {demos['plans_kept']} of {dc.episodes} scenes solved, "
              f"{demos['samples']:,} samples, action MSE {demos['losses'][0]:.4f} -> "
              f"{demos['losses'][-1]:.4f}, {demos['seconds'] / 60:.1f} min")  # fmt: skip
-    for r, d in enumerate(demos["dagger"], 1):
-        log.info(f"DAgger round {r}: the clone solved {d['clone_success_rate']:.1%} of "
-                 f"{d['scenes']} scenes, {d['samples_added']:,} states labelled, action MSE "
-                 f"{d['losses'][-1]:.4f}, {d['seconds'] / 60:.1f} min")  # fmt: skip
     return demos, samples
