@@ -2,7 +2,7 @@
 # The GPU figures of docs/benchmarks.md ("GPU"), in one go, on a machine with one CUDA GPU and
 # truckrl's dependencies importable. Run from the repository root:
 #
-#   launch/gpu.sh OUT [checks|train|demos|quality|precision|controls|all] [MINUTES]
+#   launch/gpu.sh OUT [checks|train|demos|quality|precision|controls|reverse|all] [MINUTES]
 #
 #   checks: the CUDA tests (tests/test_device.py: no host sync in env.step, a collector + PPO
 #           iteration that stays on the GPU), `bench env device=cuda` at N = 4,096 ... 262,144
@@ -30,12 +30,18 @@
 #           stalled for minutes after their planning. EXTRA (words) adds
 #           training overrides, DEVICE (default cuda) is the evaluations' device: a dry run on
 #           a CPU is EXTRA="device=cpu collector.num_envs=64 ..." DEVICE=cpu;
+#   reverse: `experiment=gpu_dock` and `experiment=gpu_uturn` (the shipped reversing policies
+#           fine-tuned: dock at difficulty 7, uturn from 4 up to 6), side by side on the one
+#           GPU with half the host's cores each, each stopped by its frame budget or MINUTES;
+#           their best.pt and last.pt land in OUT as reverse_<task>_<best|last>.pt, the two run
+#           folders' logs and TensorBoard events in reverse_runs.tar.gz (score them on a CPU:
+#           `truckrl eval checkpoint=FILE difficulty=7|6 episodes=1000 seed=12345`);
 #
 # Logs, JSON and the runs' train.log and last checkpoint land flat in OUT; the run folders
 # themselves go to RUNS (default outputs/gpu). Every step runs even if an earlier one fails; the
 # exit code is the number of failures.
 set -u
-OUT=${1:?usage: launch/gpu.sh OUT [checks|train|demos|quality|precision|controls|all] [MINUTES]}
+OUT=${1:?usage: launch/gpu.sh OUT [checks|train|demos|quality|precision|controls|reverse|all] [MINUTES]}
 WHAT=${2:-all}
 MIN=${3:-8}
 RUNS=${RUNS:-outputs/gpu}
@@ -139,5 +145,21 @@ if [ "$WHAT" = controls ]; then
     for c in ${CONTROLS:-jerk_accel accel_rate}; do
         for k in last best; do [ -f "$OUT/controls_${c}_$k.json" ] || fails=$((fails + 1)); done
     done
+fi
+if [ "$WHAT" = reverse ]; then
+    share=$(( $(nproc) / 2 )); [ "$share" -ge 1 ] || share=1
+    for t in dock uturn; do
+        step "reverse_$t" timeout $((MIN * 60 + 60)) python3 -m truckrl.train \
+            experiment="gpu_$t" max_minutes="$MIN" hydra.run.dir="$RUNS/reverse_$t" overwrite=true \
+            log.progress_bar=false log.video_interval=0 threads="$share" ${EXTRA:-} &
+    done
+    wait  # the steps ran in subshells: failures are counted from what they left below
+    for t in dock uturn; do
+        for k in last best; do
+            cp "$RUNS/reverse_$t/checkpoints/$k.pt" "$OUT/reverse_${t}_$k.pt" || fails=$((fails + 1))
+        done
+        grep -h "quality_reached\|best.pt\|difficulty" "$RUNS/reverse_$t/train.log" | tail -n 30
+    done
+    tar -czf "$OUT/reverse_runs.tar.gz" -C "$RUNS" --exclude='*.pt' reverse_dock reverse_uturn
 fi
 exit $fails

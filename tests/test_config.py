@@ -77,6 +77,47 @@ def test_gpu_d8_experiment_is_gpu_demos_fine_tuning_the_shipped_policy_up_to_dif
 
 
 @pytest.mark.parametrize(
+    "preset, base, changes",
+    [
+        ("gpu_dock", "dock", dict(init="pretrained:dock", start=7.0, top=7.0, frames=50_000_000,
+                                  quality=(7.0, 0.95), episodes=300)),
+        ("gpu_uturn", "pretrained_uturn", dict(init="pretrained:uturn", start=4.0, top=6.0,
+                                               frames=36_000_000, quality=(6.0, 0.9), episodes=200)),
+    ],
+)  # fmt: skip
+def test_gpu_reversing_presets_fine_tune_the_shipped_policy_with_a_gpu_batch(preset, base, changes):
+    """experiment=gpu_dock / gpu_uturn change their task preset only where their file says: the
+    shipped weights, 4,096 trucks, the curriculum's start and cap, quality at the issue's
+    target, held-out checks every 5 M frames, a frame budget; and they need a GPU."""
+    got = to_config(TrainConfig, compose_config("train", f"experiment={preset}", "device=cpu"))
+    ref = to_config(TrainConfig, compose_config("train", f"experiment={base}"))
+    expected = replace(
+        ref,
+        init=changes["init"],
+        total_frames=changes["frames"],
+        max_minutes=None,
+        stop_difficulty=None,
+        collector=replace(ref.collector, num_envs=4096),
+        curriculum=replace(
+            ref.curriculum, start_difficulty=changes["start"], max_difficulty=changes["top"]
+        ),
+        log=replace(
+            ref.log,
+            quality_difficulty=changes["quality"][0],
+            quality_target=changes["quality"][1],
+            eval_interval_frames=5_000_000,
+            eval_episodes=changes["episodes"],
+        ),  # fmt: skip
+    )
+    assert got == expected
+    import torch
+
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match=r"^device = 'cuda' but torch sees no CUDA GPU"):
+            to_config(TrainConfig, compose_config("train", f"experiment={preset}"))
+
+
+@pytest.mark.parametrize(
     "value, message",
     [
         ("gpu0", r"^demos.device = 'gpu0' is not a torch device"),
