@@ -75,6 +75,31 @@ def test_the_driver_stops_before_a_car_on_its_route():
     assert float(close) == 0.0
 
 
+def test_the_driver_stops_for_a_car_that_will_cross_its_route():
+    """A car 12 m to the right of the route, driving towards it at 6 m/s on a lane that crosses
+    the route at x = 20 m: where it is now covers no route sample, where it will be in 2 s (its
+    centre on the route) does, so the driver that reads 2 s ahead plans to stop before it."""
+    s = straight_state(None)
+    s["tr_lanes"] = torch.tensor([[[[20.0, -50.0], [20.0, 50.0]]]])  # heading +y
+    s["tr_cum"] = torch.tensor([[[0.0, 100.0]]])
+    s["tr_lane_len"] = torch.tensor([[100.0]])
+    s["tr_s"] = torch.tensor([[50.0 - 12.0]])
+    s["tr_v"] = torch.tensor([[6.0]])
+    s["tr_length"] = torch.tensor([[4.0]])
+    s["tr_width"] = torch.tensor([[1.8]])
+    s["tr_active"] = torch.tensor([[True]])
+    now, _ = RouteDriver(predict=(0.0,)).setpoints(s)
+    assert float(now) == pytest.approx(RouteDriver().cruise)  # 12 - 2 - 1.85 m clear of it
+    # in 1 s its box (half length 2 + 1.85 grown) spans y = -9.85 ... -2.15: still clear
+    assert float(RouteDriver(predict=(0.0, 1.0)).setpoints(s)[0]) == pytest.approx(now)
+    # in 2 s its centre is at (20, 0): half width 0.9 + 1.85 covers x = 17.25 ... 22.75, so the
+    # first covered sample (1 m apart) is at 18 m
+    driver = RouteDriver(predict=(0.0, 1.0, 2.0))
+    speed, _ = driver.setpoints(s)
+    gap = 18.0 - (WHEELBASE + FRONT) - driver.stop_gap
+    assert float(speed) == pytest.approx(math.sqrt(2.0 * driver.brake * gap), rel=1e-5)
+
+
 def test_covered_route_samples_match_a_point_in_polygon_oracle():
     g = torch.Generator().manual_seed(3)
     n, m, k = 8, 5, 40

@@ -14,7 +14,9 @@ through the chain's junctions) forwards, with privileged knowledge of the traffi
 * **Speed** (:func:`~truckrl.planning.controller.setpoint_action` tracks it): the least of the cruise speed, the speed that keeps the lateral acceleration
   below ``lateral_accel`` on the route's curvature ahead, the speed that stops ``stop_gap``
   metres before the first route sample covered by a vehicle (its box grown by the truck's half
-  width and ``clearance``), and, near the goal, the speed that arrives at ``arrive_speed``.
+  width and ``clearance``) where it is now or where it will be ``predict`` seconds on (moved
+  along its lane at its present speed: a vehicle about to cross the route counts before it
+  gets there), and, near the goal, the speed that arrives at ``arrive_speed``.
 
 :func:`demonstrations` (``demos.source=driver``) drives held-out scenes with it in an eager env
 and keeps the successful episodes: what :func:`truckrl.rl.imitation.bootstrap` clones.
@@ -50,7 +52,7 @@ from truckrl.tasks.network.task import traffic_of
 class RouteDriver:
     """The driver's constants (lengths [m], speeds [m/s], accelerations [m/s^2])."""
 
-    lookahead: float = 5.0  # pure-pursuit distance at standstill
+    lookahead: float = 6.0  # pure-pursuit distance at standstill
     lookahead_per_speed: float = 0.3  # [s]: added per m/s of speed
     cruise: float = 6.0  # at most; the truck's own max_speed caps it too
     lateral_accel: float = 1.5  # on the curvature of the next preview metres
@@ -62,8 +64,9 @@ class RouteDriver:
     clearance: float = 0.6  # added to the truck's half width round a vehicle's box
     arrive_speed: float = 1.0  # speed when crossing the goal
     wide: float = 4.5  # [m] left of the route the tractor aims before a right turn
-    wide_ahead: float = 25.0  # [m] of route over which the coming turn is read
+    wide_ahead: float = 20.0  # [m] of route over which the coming turn is read
     wide_turn: float = 1.0  # [rad] of right turn over wide_ahead for the full offset
+    predict: tuple[float, ...] = (0.0, 1.0, 2.0)  # [s]: each vehicle now and where it will be
 
     def setpoints(self, s: Mapping[str, Any]) -> tuple[Tensor, Tensor]:
         """``(speed [N] [m/s], steering angle [N] [rad])`` set-points for the state dict ``s``
@@ -98,7 +101,11 @@ class RouteDriver:
         speed = speed.minimum((self.lateral_accel / kappa.clamp_min(1e-4)).sqrt())
         front = p["wheelbase"] + p["front_overhang"]  # rear axle to front bumper
         if "tr_active" in s and s["tr_active"].shape[1] > 0:
-            blocked = _covered(xy, boxes(traffic_of(s)), s, p, self.clearance)  # [N, M, S]
+            tr = traffic_of(s)
+            blocked = torch.zeros((), dtype=torch.bool)
+            for t in self.predict:  # along its lane at its present speed
+                at_t = dataclasses.replace(tr, s=tr.s + t * tr.v)
+                blocked = blocked | _covered(xy, boxes(at_t), s, p, self.clearance)  # [N, M, S]
             big = torch.full_like(ahead, math.inf)
             first = torch.where(blocked, ahead.unsqueeze(1), big.unsqueeze(1)).amin(-1).amin(-1)
             gap = (first - route_s - front - self.stop_gap).clamp_min(0.0)
