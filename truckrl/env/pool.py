@@ -72,23 +72,24 @@ class EpisodePool:
 
     def take(self, m: int, key: Hashable = None) -> tuple[Leaves, Observation | None]:
         """The next ``m`` episodes ``({state leaf key: [m, ...]}, first observation)``, prepared
-        for ``key`` (as drawn, and no observation, without ``prepare``)."""
-        if len(self) < m:
-            fresh = self._draw(max(m, self._size))
-            ready = self._ready
-            if ready is not None and ready[0] == key:
-                leaves, obs = self._prepare(fresh, key)
-                ready = (
-                    key,
-                    _cat(_rows(ready[1], self._pos), leaves),
-                    _cat(_rows(ready[2], self._pos), obs),
-                )
-            else:
-                ready = None
-            held = (
-                fresh if self._episodes is None else _cat(_rows(self._episodes, self._pos), fresh)
-            )
-            self._episodes, self._ready, self._pos = held, ready, 0
+        for ``key`` (as drawn, and no observation, without ``prepare``).
+
+        Where fewer than ``m`` are held, the held ones go first and a refill the rest; only
+        those ``m`` rows are joined, not the refill's whole batch (a network episode holds
+        tens of kilobytes of scene)."""
+        rest = len(self)
+        if rest >= m:
+            return self._held(m, key)
+        head = self._held(rest, key) if rest else None
+        self._episodes, self._ready, self._pos = self._draw(max(m, self._size)), None, 0
+        tail = self._held(m - rest, key)
+        if head is None:
+            return tail
+        obs = None if tail[1] is None else _cat(head[1], tail[1])
+        return _cat(head[0], tail[0]), obs
+
+    def _held(self, m: int, key: Hashable) -> tuple[Leaves, Observation | None]:
+        """The next ``m`` held episodes (``m <= len(self)``), prepared for ``key``."""
         lo, hi = self._pos, self._pos + m
         self._pos = hi
         if self._prepare is None:
