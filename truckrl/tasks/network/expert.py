@@ -102,7 +102,7 @@ class RouteDriver:
         front = p["wheelbase"] + p["front_overhang"]  # rear axle to front bumper
         if "tr_active" in s and s["tr_active"].shape[1] > 0:
             tr = traffic_of(s)
-            blocked = torch.zeros((), dtype=torch.bool)
+            blocked = torch.zeros((), dtype=torch.bool, device=xy.device)
             for t in self.predict:  # along its lane at its present speed
                 at_t = dataclasses.replace(tr, s=tr.s + t * tr.v)
                 blocked = blocked | _covered(xy, boxes(at_t), s, p, self.clearance)  # [N, M, S]
