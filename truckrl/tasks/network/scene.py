@@ -699,7 +699,8 @@ def generate_episodes(
             reach,
         )  # fmt: skip
         ok, pick = first_valid(fresh.feasible.view(copies, rows.numel()))
-        fresh = _take(fresh, pick)
+        if copies > 1:  # one copy: pick is every row in order, and the chains are kept as drawn
+            fresh = _take(fresh, pick)
         if chain is None:
             chain = fresh  # round 0 holds every row
         else:
