@@ -79,18 +79,25 @@ def test_gpu_d8_experiment_is_gpu_demos_fine_tuning_the_shipped_policy_up_to_dif
 @pytest.mark.parametrize(
     "preset, base, changes",
     [
-        ("gpu_dock", "dock", dict(init="pretrained:dock", start=7.0, top=7.0, frames=50_000_000,
-                                  quality=(7.0, 0.95), episodes=300)),
+        ("finetune_dock", "dock", dict(init="pretrained:dock", start=7.0, top=7.0,
+                                       frames=160_000_000, quality=(7.0, 0.95), episodes=300,
+                                       max_std=0.5, lr_max=3e-4, desired_kl=0.005)),
         ("gpu_uturn", "pretrained_uturn", dict(init="pretrained:uturn", start=4.0, top=6.0,
                                                frames=36_000_000, quality=(6.0, 0.9), episodes=200)),
     ],
 )  # fmt: skip
-def test_gpu_reversing_presets_fine_tune_the_shipped_policy_with_a_gpu_batch(preset, base, changes):
-    """experiment=gpu_dock / gpu_uturn change their task preset only where their file says: the
-    shipped weights, 4,096 trucks, the curriculum's start and cap, quality at the issue's
-    target, held-out checks every 5 M frames, a frame budget; and they need a GPU."""
+def test_reversing_fine_tunes_change_their_task_preset_only_where_their_file_says(
+    preset, base, changes
+):
+    """experiment=finetune_dock / gpu_uturn change their task preset only where their file says:
+    the shipped weights, 4,096 trucks, the curriculum's start and cap, quality at the issue's
+    target, held-out checks every 5 M frames, a frame budget (finetune_dock: the std bound and
+    the smaller updates too)."""
     got = to_config(TrainConfig, compose_config("train", f"experiment={preset}", "device=cpu"))
     ref = to_config(TrainConfig, compose_config("train", f"experiment={base}"))
+    ppo = ref.ppo
+    if "lr_max" in changes:
+        ppo = replace(ppo, lr_max=changes["lr_max"], desired_kl=changes["desired_kl"])
     expected = replace(
         ref,
         init=changes["init"],
@@ -98,6 +105,8 @@ def test_gpu_reversing_presets_fine_tune_the_shipped_policy_with_a_gpu_batch(pre
         max_minutes=None,
         stop_difficulty=None,
         collector=replace(ref.collector, num_envs=4096),
+        model=replace(ref.model, max_std=changes.get("max_std", ref.model.max_std)),
+        ppo=ppo,
         curriculum=replace(
             ref.curriculum, start_difficulty=changes["start"], max_difficulty=changes["top"]
         ),
@@ -110,8 +119,18 @@ def test_gpu_reversing_presets_fine_tune_the_shipped_policy_with_a_gpu_batch(pre
         ),  # fmt: skip
     )
     assert got == expected
+
+
+@pytest.mark.parametrize("preset, base", [("gpu_dock", "finetune_dock"), ("gpu_uturn", None)])
+def test_gpu_reversing_presets_need_a_gpu(preset, base):
+    """experiment=gpu_dock is finetune_dock on a CUDA device; both GPU presets stop with one
+    line where torch sees no GPU."""
     import torch
 
+    if base is not None:
+        got = to_config(TrainConfig, compose_config("train", f"experiment={preset}", "device=cpu"))
+        ref = to_config(TrainConfig, compose_config("train", f"experiment={base}"))
+        assert got == ref
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match=r"^device = 'cuda' but torch sees no CUDA GPU"):
             to_config(TrainConfig, compose_config("train", f"experiment={preset}"))
