@@ -30,8 +30,8 @@
 #           stalled for minutes after their planning. EXTRA (words) adds
 #           training overrides, DEVICE (default cuda) is the evaluations' device: a dry run on
 #           a CPU is EXTRA="device=cpu collector.num_envs=64 ..." DEVICE=cpu;
-#   reverse: `experiment=gpu_dock` and `experiment=gpu_uturn` (the shipped reversing policies
-#           fine-tuned: dock at difficulty 7, uturn from 4 up to 6), side by side on the one
+#   reverse: `experiment=gpu_dock` (finetune_dock on the GPU) and `experiment=gpu_uturn` (the
+#           shipped reversing policies fine-tuned: dock at difficulty 7, uturn from 4 up to 6), side by side on the one
 #           GPU with half the host's cores each, each stopped by its frame budget or MINUTES;
 #           their best.pt and last.pt land in OUT as reverse_<task>_<best|last>.pt, the two run
 #           folders' logs and TensorBoard events in reverse_runs.tar.gz (score them on a CPU:
