@@ -58,6 +58,11 @@ class PlanConfig:
     checkpoint: str | None = param(
         None, doc="also replay this policy's mean actions: solvable = planner or policy"
     )
+    skip_solved: bool = param(
+        False,
+        doc="with checkpoint: plan only the scenes the policy fails (each scene it solves is "
+        "already a witness; the planner-alone figures then cover the planned scenes)",
+    )
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     env: dict[str, Any] = param({}, doc="env config fields (env.max_steps=300)")
     device: str = param("cpu", doc="cpu | cuda[:i]")
@@ -69,6 +74,10 @@ class PlanConfig:
         if isinstance(self.category, str):  # one value for a list of one
             self.category = (self.category,)
         validate(self)
+        if self.skip_solved and not self.checkpoint:
+            raise ConfigError(
+                "skip_solved = true needs checkpoint= (the policy whose failures are planned)"
+            )
 
 
 def configure(args: PlanConfig) -> tuple[Any, Any]:
@@ -154,6 +163,7 @@ def run(args: PlanConfig) -> dict:
         indices,
         progress,
         loaded.actor if loaded else None,
+        args.skip_solved,
     )
     seconds = time.perf_counter() - t0
     out, rows = report(args, env_cfg, loaded, results, tolerance, errors)
@@ -171,6 +181,8 @@ def run(args: PlanConfig) -> dict:
 
 def report(args: PlanConfig, env_cfg, loaded, results: dict, tolerance, errors):
     """The JSON record of a plan run and its category rows."""
+    import torch
+
     from truckrl.cli import git_revision
     from truckrl.evaluation.categories import summarize_by_category, task_bins
     from truckrl.evaluation.rollout import summarize
@@ -182,11 +194,21 @@ def report(args: PlanConfig, env_cfg, loaded, results: dict, tolerance, errors):
     rows = summarize_by_category(results, bins, errors) if bins else []
     sources = {}
     if loaded:
-        for name, key in (("planner", "planner"), ("policy", "extra")):
-            alone = {**results, **results["by_source"][key]}
+        # skip_solved: the planner searched only the scenes results["searched"] marks; its
+        # figures alone cover those, the policy's every scene
+        planned = results.get("searched", torch.ones(n, dtype=torch.bool))
+        everyone = torch.ones(n, dtype=torch.bool)
+        for name, key, keep in (("planner", "planner", planned), ("policy", "extra", everyone)):
+            own = results["by_source"][key]
+            if name == "policy":
+                own = {k: v[keep] for k, v in own.items()}
+            alone = {**_scene_rows(results, keep, n), **own}
+            alone["scene_info_keys"] = results.get("scene_info_keys", ())
+            cells = task_bins(env_cfg.task.name, category_info(alone)) if bins else None
             sources[name] = {
-                "success_rate": alone["success"].float().mean().item(),
-                "categories": summarize_by_category(alone, bins, errors) if bins else [],
+                "scenes": int(keep.sum()),
+                "success_rate": alone["success"].float().mean().item() if keep.any() else None,
+                "categories": summarize_by_category(alone, cells, errors) if cells else [],
             }
     steps = results["rollouts"] * env_cfg.max_steps
     out = {
@@ -197,6 +219,7 @@ def report(args: PlanConfig, env_cfg, loaded, results: dict, tolerance, errors):
         "episodes": args.episodes,
         "categories_planned": list(args.category) or "all",
         "planned": n,
+        "searched": int(results["searched"].sum()) if "searched" in results else n,
         **{k: v for k, v in summary.items() if k != "episodes"},
         "planned_success_rate": results["planned_success"].float().mean().item(),
         "replay_mismatches": int(results["replay_mismatch"].sum()),
@@ -218,9 +241,24 @@ def report(args: PlanConfig, env_cfg, loaded, results: dict, tolerance, errors):
             **sources["policy"],
         }
         out["planner_alone"] = sources["planner"]
-        for e, ok in zip(out["per_episode"], results["solved_by_extra"].tolist(), strict=True):
+        searched = results.get("searched", torch.ones(n, dtype=torch.bool)).tolist()
+        for e, ok, s in zip(
+            out["per_episode"], results["solved_by_extra"].tolist(), searched, strict=True
+        ):
             e["solved_by"] = "policy" if ok else ("planner" if e["success"] else None)
+            e["searched"] = s
     return out, rows
+
+
+def _scene_rows(results: dict, keep, n: int) -> dict:
+    """The per-scene tensors ``[n, ...]`` of ``results``, rows ``keep`` (bool ``[n]``) only."""
+    import torch
+
+    return {
+        k: v[keep]
+        for k, v in results.items()
+        if isinstance(v, torch.Tensor) and v.shape[:1] == (n,)
+    }
 
 
 def _per_episode(results: dict, errors) -> list[dict]:
@@ -283,21 +321,34 @@ def print_report(s: dict, errors, rows: list[dict]) -> None:
 
 
 def format_sources(s: dict) -> str:
-    """Success per category of the planner alone, the policy alone and either (``checkpoint``)."""
+    """Success per category of the planner alone, the policy alone and either (``checkpoint``).
+    With ``skip_solved`` the planner's column covers only the scenes it searched (those the
+    policy fails), as ``rate of count``."""
     planner, policy = s["planner_alone"], s["policy"]
+    subset = planner["scenes"] != s["planned"]
+
+    def rate(row: dict | None, count: int) -> str:
+        if row is None or row["success_rate"] is None:
+            return "-"
+        return f"{row['success_rate']:.1%}" + (f" of {count}" if subset else "")
+
+    w = 16 if subset else 9
+    title = "each replayed open loop"
+    if subset:
+        title += f"; the planner searched only the {planner['scenes']} scenes the policy fails"
     lines = [
         f"solvable = planner or policy ({policy['checkpoint']}, {policy['frames']:,} frames), "
-        "each replayed open loop:",
-        f"{'category':<34}{'scenes':>7}{'planner':>9}{'policy':>9}{'either':>9}",
-        f"{'all':<34}{s['planned']:>7}{planner['success_rate']:>9.1%}"
+        f"{title}:",
+        f"{'category':<34}{'scenes':>7}{'planner':>{w}}{'policy':>9}{'either':>9}",
+        f"{'all':<34}{s['planned']:>7}{rate(planner, planner['scenes']):>{w}}"
         f"{policy['success_rate']:>9.1%}{s['success_rate']:>9.1%}",
     ]
-    for both, a, b in zip(
-        s["categories"], planner["categories"], policy["categories"], strict=True
-    ):
-        name = f"{both['dimension']} {both['bin']}"
+    by_bin = {(r["dimension"], r["bin"]): r for r in planner["categories"]}
+    for both, b in zip(s["categories"], policy["categories"], strict=True):
+        a = by_bin.get((both["dimension"], both["bin"]))
         lines.append(
-            f"{name:<34}{both['count']:>7}{a['success_rate']:>9.1%}{b['success_rate']:>9.1%}"
+            f"{both['dimension'] + ' ' + both['bin']:<34}{both['count']:>7}"
+            f"{rate(a, a['count'] if a else 0):>{w}}{b['success_rate']:>9.1%}"
             f"{both['success_rate']:>9.1%}"
         )
     return "\n".join(lines)

@@ -387,3 +387,51 @@ def test_cli_policy_reports_planner_policy_and_either(tmp_path, capsys):
     assert plan_cli.main([f"checkpoint={tmp_path / 'none.pt'}"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and len(err.splitlines()) == 1
+
+
+def test_cli_skip_solved_plans_only_the_policys_failures(tmp_path, capsys):
+    import dataclasses
+    import json
+
+    from truckrl.planning import held_out_states
+    from truckrl.rl.policy import load_policy
+
+    out = tmp_path / "plan.json"
+    args = ["checkpoint=pretrained", "episodes=6", "seed=7", "planner.samples=4", "difficulty=0"]
+    args += ["planner.iterations=1", "planner.attempts=1", "planner.compile=false", "quiet=true"]
+    assert plan_cli.main([*args, "skip_solved=true", "env.max_steps=30", f"out={out}"]) == 0
+    s = json.loads(out.read_text())
+    eps = s["per_episode"]
+    # the policy alone, by evaluate_policy's closed loop (not the plan's replay) on the same scenes
+    loaded = load_policy("pretrained")
+    env = dataclasses.replace(loaded.env_config, max_steps=30)
+    ev, _, _ = evaluate_policy(loaded.actor, env, 0.0, episodes=6, seed=7)
+    policy_ok = ev["success"].tolist()
+    assert 0 < sum(policy_ok) < 6  # the precondition: the policy solves some scenes, not all
+    # searched: exactly the scenes the policy fails; the others are never planned
+    assert [e["searched"] for e in eps] == [not ok for ok in policy_ok]
+    assert s["searched"] == s["planner_alone"]["scenes"] == 6 - sum(policy_ok)
+    for e, ok in zip(eps, policy_ok, strict=True):
+        if ok:
+            assert e["solved_by"] == "policy" and e["iterations"] == 0
+            assert not e["planned_success"]
+        else:
+            assert e["solved_by"] in ("planner", None) and e["iterations"] >= 1
+    # the written sequences, replayed from the same scenes, give the written outcomes
+    states = held_out_states(env, 6, 7, difficulty=0.0)
+    actions = torch.zeros(6, 30, 2)
+    for i, e in enumerate(eps):
+        actions[i, : len(e["actions"])] = torch.tensor(e["actions"])
+    again = replay(env, states, actions, 0.0)
+    assert again["success"].tolist() == [e["success"] for e in eps]
+    # solvable = policy or planner over every scene; the policy's column covers every scene
+    searched_ok = [e["success"] for e in eps if e["searched"]]
+    assert s["success_rate"] == pytest.approx((sum(policy_ok) + sum(searched_ok)) / 6)
+    assert s["policy"]["success_rate"] == pytest.approx(sum(policy_ok) / 6)
+    assert s["planner_alone"]["success_rate"] == pytest.approx(sum(searched_ok) / len(searched_ok))
+    assert "the planner searched only the" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as stop:  # before any work: no checkpoint to take failures of
+        plan_cli.main(["skip_solved=true"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert "skip_solved" in err and "checkpoint" in err and len(err.splitlines()) == 1

@@ -209,6 +209,7 @@ def plan_episodes(
     indices: Sequence[int] | Tensor | None = None,
     progress: Callable[[int, int], None] | None = None,
     policy: Callable[[TensorDictBase], TensorDictBase] | None = None,
+    skip_solved: bool = False,
 ) -> tuple[dict[str, Any], tuple[float, float], tuple[Quantity, ...]]:
     """Plan the ``episodes`` seeded scenes that ``evaluate_policy(…, episodes, seed)`` scores.
 
@@ -224,10 +225,16 @@ def plan_episodes(
         policy: a policy (as ``evaluate_policy`` takes) whose mean actions on the same scenes
             are replayed beside the planner's candidates (``plan_states``'s ``extra``): a scene
             is then solved when the planner or the policy solves it.
+        skip_solved: with ``policy``, plan only the scenes whose policy replay fails: a scene
+            the policy solves is a witness that it is solvable, and searching it again costs
+            the most planning time for no new answer (:func:`_merge_skipped`).
 
     Returns:
-        As :func:`plan_states`, plus ``results["scene_index"] [E]``.
+        As :func:`plan_states`, plus ``results["scene_index"] [E]``; with ``skip_solved``,
+        also ``results["searched"] [E]`` (bool: the planner searched the scene).
     """
+    if skip_solved and policy is None:
+        raise ConfigError("skip_solved needs a policy (truckrl plan: checkpoint=)")
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ConfigError(f"episodes = {episodes!r} must be a whole number >= 1")
     states = held_out_states(env_cfg, episodes, seed, device, difficulty)
@@ -238,11 +245,73 @@ def plan_episodes(
     extra = None
     if policy is not None:
         extra = policy_actions(policy, build(EnvConfig, env_cfg, "env"), states, difficulty, device)
-    results, tolerance, errors = plan_states(
-        env_cfg, states, difficulty, config, device, progress, extra
-    )
+    if skip_solved:
+        first = replay(env_cfg, states, extra, difficulty, device)
+        todo = (~first["success"]).nonzero().squeeze(-1)
+        part = None
+        if todo.numel():
+            part = plan_states(
+                env_cfg, states[todo.to(states.device)], difficulty, config, device, progress,
+                extra[todo.to(extra.device)],
+            )  # fmt: skip
+        results, tolerance, errors = _merge_skipped(
+            env_cfg, states, difficulty, config, first, extra, todo, part
+        )
+    else:
+        results, tolerance, errors = plan_states(
+            env_cfg, states, difficulty, config, device, progress, extra
+        )
     results["scene_index"] = index
     return results, tolerance, errors
+
+
+def _merge_skipped(
+    env_cfg: EnvConfig | dict | None,
+    states: TensorDictBase,
+    difficulty: float,
+    config: PlannerConfig | dict | None,
+    first: dict[str, Tensor],
+    extra: Tensor,
+    todo: Tensor,
+    part: tuple[dict[str, Any], tuple[float, float], tuple[Quantity, ...]] | None,
+) -> tuple[dict[str, Any], tuple[float, float], tuple[Quantity, ...]]:
+    """:func:`plan_states`'s results for all ``E`` scenes where only the ``todo`` ones were
+    planned (``part``, None when there were none): the other rows are the policy's replay
+    ``first`` (solved by it, ``solved_by_extra``), never planned (``planned_success`` False,
+    ``best_ratio`` NaN, no iterations). ``by_source["planner"]`` holds the planned rows only
+    (``results["searched"]`` says which), ``by_source["extra"]`` every row."""
+    planner = make_planner(env_cfg, config, "cpu")  # its task's tolerances and keys only
+    e, horizon = states.batch_size[0], planner.horizon
+    searched = torch.zeros(e, dtype=torch.bool)
+    searched[todo.cpu()] = True
+    acts = torch.zeros(e, horizon, 2)
+    t = min(horizon, extra.shape[1])
+    acts[:, :t] = extra[:, :t].cpu()
+    length = first["length"].long()
+    results: dict[str, Any] = {k: v.clone() for k, v in first.items()}
+    results["actions"] = acts * (torch.arange(horizon)[None, :, None] < length[:, None, None])
+    results["planned_success"] = torch.zeros(e, dtype=torch.bool)
+    results["replay_mismatch"] = torch.zeros(e, dtype=torch.bool)
+    results["best_ratio"] = torch.full((e,), math.nan)
+    results["iterations"] = torch.zeros(e, dtype=torch.long)
+    results["attempts"] = torch.zeros(e, dtype=torch.long)
+    results["solved_by_extra"] = first["success"].clone()
+    results["rollouts"], results["plan_seconds"] = 0, 0.0
+    by_planner: dict[str, Tensor] = {k: v[:0] for k, v in first.items()}
+    if part is not None:
+        got = part[0]
+        rows = todo.cpu()
+        for k, v in results.items():
+            if isinstance(v, Tensor) and k in got:
+                v[rows] = got[k].to(v.dtype)
+        results["rollouts"], results["plan_seconds"] = got["rollouts"], got["plan_seconds"]
+        by_planner = got["by_source"]["planner"]
+    results["by_source"] = {"planner": by_planner, "extra": first}
+    results["searched"] = searched
+    _scene_keys(results, states, planner.task.reverse)
+    tol_pos, tol_ang = planner.task.tolerances(torch.tensor([float(difficulty)]))
+    tolerance = (float(tol_pos[0]), math.degrees(float(tol_ang[0])))
+    return results, tolerance, planner.task.error_quantities
 
 
 def category_info(results: dict[str, Any]) -> dict[str, Tensor]:
