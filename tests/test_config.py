@@ -84,20 +84,26 @@ def test_gpu_d8_experiment_is_gpu_demos_fine_tuning_the_shipped_policy_up_to_dif
                                        max_std=0.5, lr_max=3e-4, desired_kl=0.005)),
         ("gpu_uturn", "pretrained_uturn", dict(init="pretrained:uturn", start=4.0, top=6.0,
                                                frames=36_000_000, quality=(6.0, 0.9), episodes=200)),
+        ("finetune_intersection", "pretrained_intersection",
+         dict(init="pretrained:intersection", start=6.0, top=6.0, frames=50_000_000,
+              quality=(6.0, 0.99), episodes=1000, max_std=0.3, lr_max=3e-4, desired_kl=0.005,
+              no_demos=True)),
     ],
 )  # fmt: skip
-def test_reversing_fine_tunes_change_their_task_preset_only_where_their_file_says(
+def test_fine_tune_presets_change_their_task_preset_only_where_their_file_says(
     preset, base, changes
 ):
-    """experiment=finetune_dock / gpu_uturn change their task preset only where their file says:
+    """experiment=finetune_dock / gpu_uturn / finetune_intersection change their task preset
+    only where their file says:
     the shipped weights, 4,096 trucks, the curriculum's start and cap, quality at the issue's
-    target, held-out checks every 5 M frames, a frame budget (finetune_dock: the std bound and
-    the smaller updates too)."""
+    target, held-out checks every 5 M frames, a frame budget (the CPU fine-tunes: the std bound
+    and the smaller updates too; finetune_intersection: no demonstrations)."""
     got = to_config(TrainConfig, compose_config("train", f"experiment={preset}", "device=cpu"))
     ref = to_config(TrainConfig, compose_config("train", f"experiment={base}"))
     ppo = ref.ppo
     if "lr_max" in changes:
         ppo = replace(ppo, lr_max=changes["lr_max"], desired_kl=changes["desired_kl"])
+    demos = replace(ref.demos, episodes=0, bc_coeff=0.0) if changes.get("no_demos") else ref.demos
     expected = replace(
         ref,
         init=changes["init"],
@@ -105,7 +111,12 @@ def test_reversing_fine_tunes_change_their_task_preset_only_where_their_file_say
         max_minutes=None,
         stop_difficulty=None,
         collector=replace(ref.collector, num_envs=4096),
-        model=replace(ref.model, max_std=changes.get("max_std", ref.model.max_std)),
+        demos=demos,
+        model=replace(
+            ref.model,
+            max_std=changes.get("max_std", ref.model.max_std),
+            init_std=min(ref.model.init_std, changes.get("max_std", ref.model.init_std)),
+        ),
         ppo=ppo,
         curriculum=replace(
             ref.curriculum, start_difficulty=changes["start"], max_difficulty=changes["top"]
