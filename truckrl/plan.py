@@ -21,8 +21,9 @@ and either, overall and per category.
 ``env.task.scene.road_width=[14,18]``, ``env.control.lateral=angle``), ``planner.FIELD=VALUE`` a
 :class:`~truckrl.planning.PlannerConfig` field (``planner.samples=64``,
 ``planner.compile=false``), ``category`` plans only the scenes in every named bin of the task
-(``category="[route right]"``, as the category table prints them). Bad input prints one line and
-exits with code 2.
+(``category="[route right]"``, as the category table prints them). ``skip_solved=true`` (with
+``checkpoint``) plans only the scenes the policy fails: the solvable share of many scenes at the
+cost of searching the policy's misses alone. Bad input prints one line and exits with code 2.
 """
 
 from __future__ import annotations
@@ -61,7 +62,8 @@ class PlanConfig:
     skip_solved: bool = param(
         False,
         doc="with checkpoint: plan only the scenes the policy fails (each scene it solves is "
-        "already a witness; the planner-alone figures then cover the planned scenes)",
+        "already a witness; the planner-alone figures then cover the planned scenes, and only "
+        "their action sequences are written)",
     )
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     env: dict[str, Any] = param({}, doc="env config fields (env.max_steps=300)")
@@ -282,7 +284,10 @@ def _per_episode(results: dict, errors) -> list[dict]:
         if results["scene_info_keys"]:  # the task's scene metadata (route, angles, ...)
             e["scene_info"] = {k: results[k][j].item() for k in results["scene_info_keys"]}
         e["params"] = {k: v[j].item() for k, v in results["params"].items()}
-        e["actions"] = results["actions"][j, : int(results["length"][j])].tolist()
+        # skip_solved: a scene the planner did not search has the checkpoint's mean actions,
+        # which the checkpoint reproduces (policy_actions), so its sequence is not written
+        if "searched" not in results or bool(results["searched"][j]):
+            e["actions"] = results["actions"][j, : int(results["length"][j])].tolist()
         eps.append(e)
     return eps
 
