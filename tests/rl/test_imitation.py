@@ -173,3 +173,50 @@ def test_bootstrap_plans_on_demos_device_else_on_the_runs(monkeypatch):
         with pytest.raises(RuntimeError, match="planned"):
             bootstrap(None, ENV, dc, run_device)
     assert seen == ["cpu", "meta"]
+
+
+def test_plan_demos_takes_the_successful_episodes_that_hold_a_sequence():
+    from truckrl.rl.imitation import plan_demos
+
+    plan = {"per_episode": [
+        {"scene_index": 0, "success": True, "actions": [[0.5, 0.0]]},
+        {"scene_index": 3, "success": True},  # skip_solved: the policy's own, not written
+        {"scene_index": 4, "success": False, "actions": [[1.0, 1.0]]},
+        {"scene_index": 7, "success": True, "actions": [[0.1, -0.2], [0.0, 0.0]]},
+    ]}  # fmt: skip
+    assert plan_demos(plan) == ([0, 7], [[[0.5, 0.0]], [[0.1, -0.2], [0.0, 0.0]]])
+
+
+def test_imitate_init_clones_into_a_checkpoints_weights(tmp_path, capsys, tiny_checkpoint):
+    from truckrl.rl.checkpoint import load_training_state
+
+    run, _, _ = tiny_checkpoint
+    plan_json = tmp_path / "plan.json"
+    threads = torch.get_num_threads()
+    try:
+        code = plan_cli.main([
+            "episodes=3", "difficulty=0", "planner.compile=false", "planner.samples=32",
+            "planner.iterations=2", "quiet=true", "env.max_steps=40", f"out={plan_json}",
+        ])  # fmt: skip
+    finally:
+        torch.set_num_threads(threads)
+    assert code == 0, capsys.readouterr().err
+    start = load_training_state(run)["model"]
+    train = [f"train.{o}" for o in TINY_TRAIN] + ["train.env.max_steps=40", "train.seed=1"]
+    weights = {}
+    for name, extra in (("init", [f"init={run}", "std=null"]), ("fresh", [])):
+        out = tmp_path / name
+        args = [f"plan={plan_json}", *train, "epochs=1", "lr=0.0000001", f"out={out}", *extra]
+        try:
+            assert imitate_cli.main(args) == 0, capsys.readouterr().err
+        finally:
+            torch.set_num_threads(threads)
+        weights[name] = load_training_state(out)["model"]
+    # one epoch at lr 1e-7 moves no weight by 1e-5: the clone starts from the checkpoint's
+    # weights, log-std included (std=null keeps it); a fresh start (train.seed=1) is elsewhere
+    for k, v in start.items():
+        assert torch.allclose(weights["init"][k], v, atol=1e-5), k
+    assert any(not torch.allclose(weights["fresh"][k], v, atol=1e-3) for k, v in start.items())
+    err = _exit_2(capsys, f"plan={plan_json}", *train, f"init={tmp_path / 'none'}",
+                  f"out={tmp_path / 'x'}")  # fmt: skip
+    assert err.startswith("error: init = ") and len(err.strip().splitlines()) == 1

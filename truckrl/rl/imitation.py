@@ -181,8 +181,9 @@ def set_action_std(ac: ActorCritic, std: float) -> None:
 
 
 def plan_demos(plan: dict[str, Any]) -> tuple[list[int], list[list[list[float]]]]:
-    """Scene indices and action sequences of the successful episodes of a ``plan.json``."""
-    episodes = [e for e in plan["per_episode"] if e["success"]]
+    """Scene indices and action sequences of the successful episodes of a ``plan.json`` that
+    holds one (``truckrl plan skip_solved=true`` writes none for the scenes the policy solved)."""
+    episodes = [e for e in plan["per_episode"] if e["success"] and "actions" in e]
     return [int(e["scene_index"]) for e in episodes], [e["actions"] for e in episodes]
 
 

@@ -9,7 +9,11 @@ replays its successful action sequences, fits the training config's actor to the
 (:mod:`truckrl.rl.imitation`) and writes ``<out>/checkpoints/last.pt``: a training checkpoint at
 iteration 0 (the curriculum at its start, a fresh optimizer) with the train config composed from
 ``train.KEY=VALUE`` overrides like ``truckrl train KEY=VALUE`` would, so that ``train
-resume=<out>`` continues it as a run of its own. ``truckrl train demos.episodes=N`` (the default
+resume=<out>`` continues it as a run of its own. ``init=CHECKPOINT`` clones into that
+checkpoint's weights instead of a fresh actor-critic (``std=null`` keeps its std): with
+``train.demos.bc_coeff > 0`` the resumed run is a fine-tune that keeps cloning the plan, for
+example the planner's solutions of the scenes a policy fails (``truckrl plan checkpoint=
+skip_solved=true``, which writes those sequences only). ``truckrl train demos.episodes=N`` (the default
 experiment) does all of this inside the run. The plan must have been made with the same env
 config as the training (apart from ``compile`` and the reward weights). Use a seed that no
 evaluation uses: the held-out seeds are ``eval``'s 12345 and training's own
@@ -46,8 +50,17 @@ class ImitateConfig:
     )
     lr: float = param(_DEMOS.lr, lo=1e-7, hi=1.0, doc="Adam learning rate")
     batch_size: int = param(_DEMOS.batch_size, lo=1, hi=10_000_000, doc="samples per minibatch")
-    std: float = param(
-        _DEMOS.std, lo=1e-3, hi=10.0, unit="action units", doc="policy std set after cloning"
+    std: float | None = param(
+        _DEMOS.std,
+        lo=1e-3,
+        hi=10.0,
+        unit="action units",
+        doc="policy std set after cloning (null: the start's, within model.max_std)",
+    )
+    init: str | None = param(
+        None,
+        doc="start from this checkpoint's weights (run dir, .pt file, pretrained[:TASK]) "
+        "instead of a fresh actor-critic: the clone as a fine-tune",
     )
     threads: int = param(2, lo=1, hi=1024, doc="torch CPU threads")
     train: dict[str, Any] = param(
@@ -140,13 +153,32 @@ def _clone(args: ImitateConfig, tc: Any, plan: dict, meta: dict) -> tuple[Any, A
     samples, kept = demonstrations(tc.env, states, actions, float(meta["difficulty"]))
     print(f"{kept} of {len(index)} successful plans replayed to success: {samples.numel()} samples")
     torch.manual_seed(tc.seed)
-    ac = make_actor_critic(tc.model, samples["observation"].shape[1], samples["lidar"].shape[1])
+    num_obs, num_beams = samples["observation"].shape[1], samples["lidar"].shape[1]
+    ac = make_actor_critic(tc.model, num_obs, num_beams)
+    if args.init:
+        _load_start(args.init, ac, num_obs, num_beams)
     losses = behaviour_clone(ac, samples, args.epochs, args.lr, args.batch_size, seed=tc.seed)
-    set_action_std(ac, args.std)
+    if args.std is not None:
+        set_action_std(ac, args.std)
     print(
         f"behaviour cloning: {args.epochs} epochs, action MSE {losses[0]:.4f} -> {losses[-1]:.4f}"
     )
     return ac, samples, kept, losses
+
+
+def _load_start(init: str, ac: Any, num_obs: int, num_beams: int) -> None:
+    """``init``'s network weights into ``ac`` (as ``train init=``; the log-std clamped to this
+    config's ``model.max_std``); a checkpoint that does not fit is a :class:`ConfigError`."""
+    from truckrl.rl import checkpoint as ckpt
+
+    try:
+        ckpt.load_init_weights(ckpt.load_training_state(init), ac.model, num_obs, num_beams)
+    except ckpt.CheckpointError as e:
+        raise ConfigError(f"init = {init!r}: {e}") from None
+    import torch
+
+    with torch.no_grad():
+        ac.gaussian.project_()
 
 
 def _write_run(out: Path, tc: Any, ac: Any, samples: Any) -> Path:
