@@ -220,3 +220,28 @@ def test_imitate_init_clones_into_a_checkpoints_weights(tmp_path, capsys, tiny_c
     err = _exit_2(capsys, f"plan={plan_json}", *train, f"init={tmp_path / 'none'}",
                   f"out={tmp_path / 'x'}")  # fmt: skip
     assert err.startswith("error: init = ") and len(err.strip().splitlines()) == 1
+
+
+def test_executed_cloning_error_is_the_clamped_means_with_a_straight_through_gradient():
+    """``action_mse(..., executed=True)``: hand-computed values. A mean of 2.5 against a
+    demonstrated 1.0 costs 0 (the env executes 1.0 either way); against 0.3 it costs (1 - 0.3)^2
+    and its gradient pulls it down as if unclamped; inside the bound both errors agree."""
+    from types import SimpleNamespace
+
+    from tensordict import TensorDict
+
+    from truckrl.rl.imitation import action_mse
+
+    loc = torch.tensor([[2.5, 0.2], [2.5, -3.0]], requires_grad=True)
+    ac = SimpleNamespace(actor=SimpleNamespace(get_dist_params=lambda td: {"loc": loc}))
+    batch = TensorDict(
+        {"observation": torch.zeros(2, 1), "lidar": torch.zeros(2, 1),
+         "action": torch.tensor([[1.0, 0.0], [0.3, -1.0]])},
+        [2],
+    )  # fmt: skip
+    executed = action_mse(ac, batch, executed=True)
+    assert executed.item() == pytest.approx((0.0 + 0.2**2 + 0.7**2 + 0.0) / 4)
+    (grad,) = torch.autograd.grad(executed, loc)
+    assert torch.allclose(grad, torch.tensor([[0.0, 2 * 0.2 / 4], [2 * 0.7 / 4, 0.0]]))
+    plain = action_mse(ac, batch)
+    assert plain.item() == pytest.approx((1.5**2 + 0.2**2 + 2.2**2 + 2.0**2) / 4)

@@ -205,6 +205,13 @@ class DemosConfig:
     bc_batch: int = param(
         1024, lo=1, hi=10_000_000, unit="samples", doc="demonstration samples per PPO minibatch"
     )
+    bc_loss: str = param(
+        "mean",
+        choices=("mean", "executed"),
+        doc="the cloning error (before PPO and in it) of the actor's mean, or of the mean as the "
+        "env executes it (clamped to [-1, 1], the gradient straight through): a trained "
+        "policy's saturated mean is then left where the demonstration agrees",
+    )
     dagger_rounds: int = param(
         0,
         lo=0,

@@ -102,14 +102,21 @@ def demonstrations(
     return samples, int(succeeded.sum())
 
 
-def action_mse(ac: ActorCritic, batch: TensorDict) -> Tensor:
+def action_mse(ac: ActorCritic, batch: TensorDict, executed: bool = False) -> Tensor:
     """Mean squared error ``[]`` between the actor's mean ("loc") and ``batch["action"]``.
 
     ``batch`` is ``[B]`` with "observation", "lidar" and "action" (a :func:`demonstrations`
-    slice); differentiable in the trunk and the mean head.
+    slice); differentiable in the trunk and the mean head. ``executed``: the mean as the env
+    executes it, clamped to ``[-1, 1]`` (``demos.bc_loss = executed``), with the gradient passed
+    straight through the clamp: a mean beyond the bound on the demonstrated side costs nothing,
+    one that should come back inside is pulled in. A trained policy's mean often lies far past
+    the bound (full throttle), where the plain error would pull it in although the truck already
+    does what the demonstration does.
     """
     # the trunk and the mean head only: no action is sampled (no random numbers spent)
     loc = ac.actor.get_dist_params(batch.select(OBS_KEY, LIDAR_KEY))["loc"]
+    if executed:
+        loc = loc + (loc.clamp(-1.0, 1.0) - loc).detach()
     return (loc - batch["action"]).square().mean()
 
 
@@ -146,8 +153,10 @@ def behaviour_clone(
     lr: float,
     batch_size: int,
     seed: int = 0,
+    executed: bool = False,
 ) -> list[float]:
-    """Fit the actor's mean to ``samples["action"]`` (MSE); return the mean loss of each epoch.
+    """Fit the actor's mean to ``samples["action"]`` (MSE, :func:`action_mse` with
+    ``executed``); return the mean loss of each epoch.
 
     Only the trunk and the mean head move (the log-std has no gradient in this loss; the value
     head is not in the actor).
@@ -164,7 +173,7 @@ def behaviour_clone(
         total = 0.0
         for start in range(0, n, batch_size):
             b = samples[order[start : start + batch_size]]
-            loss = action_mse(ac, b)
+            loss = action_mse(ac, b, executed)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -266,7 +275,9 @@ def bootstrap(
         samples, kept = demonstrations(
             env_cfg, states[ok.to(states.device)].cpu(), actions, dc.difficulty
         )
-    losses = behaviour_clone(ac, samples.to(device), dc.epochs, dc.lr, dc.batch_size, seed=seed)
+    losses = behaviour_clone(
+        ac, samples.to(device), dc.epochs, dc.lr, dc.batch_size, seed, dc.bc_loss == "executed"
+    )
     shown = int(samples.batch_size[0])  # the demonstrations' own samples
     rounds = []
     if dc.dagger_rounds > 0:
@@ -334,8 +345,9 @@ def dagger(
         solved, fresh = labelled(env_cfg, dc.dagger_episodes, dc.seed + r, dc.difficulty, act)
         samples = torch.cat([samples.cpu(), fresh.cpu()])
         losses = behaviour_clone(
-            ac, samples.to(device), dc.dagger_epochs, dc.lr, dc.batch_size, seed=seed + r
-        )
+            ac, samples.to(device), dc.dagger_epochs, dc.lr, dc.batch_size, seed + r,
+            dc.bc_loss == "executed",
+        )  # fmt: skip
         rounds.append(
             {
                 "seed": dc.seed + r,

@@ -168,10 +168,12 @@ class PPO:
     #: Demonstration samples ``[M]`` ("observation", "lidar", "action") for the cloning term, or
     #: None; with ``bc_coeff > 0`` every minibatch adds ``bc_coeff`` x the actor's action MSE on
     #: ``bc_batch`` of them drawn at random (``demos.bc_coeff``; the trainer sets the weight each
-    #: iteration).
+    #: iteration); ``bc_executed``: the error of the mean as the env executes it
+    #: (``demos.bc_loss``, :func:`~truckrl.rl.imitation.action_mse`).
     demos: TensorDictBase | None = None
     bc_coeff: float = 0.0
     bc_batch: int = 1024
+    bc_executed: bool = False
 
     def __init__(self, ac: ActorCritic, cfg: PPOConfig) -> None:
         self.ac = ac
@@ -275,7 +277,7 @@ class PPO:
         total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
         bc = None
         if demos is not None:  # keep the demonstrated actions (demos.bc_coeff)
-            bc = action_mse(self.ac, demos)
+            bc = action_mse(self.ac, demos, self.bc_executed)
             total = total + bc_coeff * bc
             bc = bc.detach()
         stats = torch.stack([out[k].detach() for k in _LOSS_STATS])

@@ -113,6 +113,7 @@ class Trainer:
         if bc_weight(tc.demos, self.counters.frames) > 0 and (state or self.init is None):
             self.ppo.demos = self.demonstration_samples(demos[1]).to(tc.device)
             self.ppo.bc_batch = tc.demos.bc_batch
+            self.ppo.bc_executed = tc.demos.bc_loss == "executed"
         self.curriculum = Curriculum(tc.curriculum)
         if state:
             self._restore()

@@ -157,7 +157,8 @@ def _clone(args: ImitateConfig, tc: Any, plan: dict, meta: dict) -> tuple[Any, A
     ac = make_actor_critic(tc.model, num_obs, num_beams)
     if args.init:
         _load_start(args.init, ac, num_obs, num_beams)
-    losses = behaviour_clone(ac, samples, args.epochs, args.lr, args.batch_size, seed=tc.seed)
+    executed = tc.demos.bc_loss == "executed"  # as the resumed run's cloning term
+    losses = behaviour_clone(ac, samples, args.epochs, args.lr, args.batch_size, tc.seed, executed)
     if args.std is not None:
         set_action_std(ac, args.std)
     print(
