@@ -169,7 +169,7 @@ class PPO:
     #: None; with ``bc_coeff > 0`` every minibatch adds ``bc_coeff`` x the actor's action MSE on
     #: ``bc_batch`` of them drawn at random (``demos.bc_coeff``; the trainer sets the weight each
     #: iteration); ``bc_executed``: the error of the mean as the env executes it
-    #: (``demos.bc_loss``, :func:`~truckrl.rl.imitation.action_mse`).
+    #: (``demos.bc_loss``, ``truckrl.rl.imitation.action_mse``).
     demos: TensorDictBase | None = None
     bc_coeff: float = 0.0
     bc_batch: int = 1024
