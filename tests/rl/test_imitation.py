@@ -245,3 +245,28 @@ def test_executed_cloning_error_is_the_clamped_means_with_a_straight_through_gra
     assert torch.allclose(grad, torch.tensor([[0.0, 2 * 0.2 / 4], [2 * 0.7 / 4, 0.0]]))
     plain = action_mse(ac, batch)
     assert plain.item() == pytest.approx((1.5**2 + 0.2**2 + 2.2**2 + 2.0**2) / 4)
+
+
+def test_imitate_rebuilds_the_scenes_at_the_plans_difficulty(monkeypatch):
+    """A task with a start curriculum (uturn) places its starts by the difficulty: imitate must
+    rebuild a plan's scenes at the plan's difficulty, or no replay starts where the plan did."""
+    import truckrl.planning as planning
+    from truckrl.config.schemas import TrainConfig
+    from truckrl.planning import held_out_states
+
+    env = {"task": {"name": "uturn"}, "compile": False}
+    at = {d: held_out_states(env, 2, 5, difficulty=d)["pose"] for d in (0.0, 6.0)}
+    assert not torch.equal(at[0.0], at[6.0])  # the precondition: the starts move with it
+    seen = []
+
+    def start_states(env_cfg, episodes, seed, device="cpu", difficulty=None):
+        seen.append(difficulty)
+        raise RuntimeError("rebuilt")
+
+    monkeypatch.setattr(planning, "held_out_states", start_states)
+    plan = {"per_episode": [{"scene_index": 1, "success": True, "actions": [[0.0, 0.0]]}]}
+    meta = {"episodes": 2, "seed": 5, "difficulty": 6.0}
+    args = imitate_cli.ImitateConfig(plan="plan.json")
+    with pytest.raises(RuntimeError, match="rebuilt"):
+        imitate_cli._clone(args, TrainConfig(), plan, meta)
+    assert seen == [6.0]

@@ -149,9 +149,18 @@ def _clone(args: ImitateConfig, tc: Any, plan: dict, meta: dict) -> tuple[Any, A
     index, actions = plan_demos(plan)
     if not index:
         raise ConfigError(f"plan {args.plan} has no successful episode to learn from")
-    states = held_out_states(tc.env, int(meta["episodes"]), int(meta["seed"]))[torch.tensor(index)]
-    samples, kept = demonstrations(tc.env, states, actions, float(meta["difficulty"]))
-    print(f"{kept} of {len(index)} successful plans replayed to success: {samples.numel()} samples")
+    # the scenes as the plan saw them: a task with a start curriculum (uturn, network) places
+    # its starts by the difficulty
+    difficulty = float(meta["difficulty"])
+    states = held_out_states(tc.env, int(meta["episodes"]), int(meta["seed"]), "cpu", difficulty)
+    samples, kept = demonstrations(tc.env, states[torch.tensor(index)], actions, difficulty)
+    n = int(samples.batch_size[0])
+    print(f"{kept} of {len(index)} successful plans replayed to success: {n} samples")
+    if kept == 0:
+        raise ConfigError(
+            f"plan {args.plan}: none of its {len(index)} successful plans replays to success "
+            "with this training's env config (plan with its env settings)"
+        )
     torch.manual_seed(tc.seed)
     num_obs, num_beams = samples["observation"].shape[1], samples["lidar"].shape[1]
     ac = make_actor_critic(tc.model, num_obs, num_beams)
