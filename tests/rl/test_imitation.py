@@ -204,9 +204,13 @@ def test_imitate_init_clones_into_a_checkpoints_weights(tmp_path, capsys, tiny_c
     start = load_training_state(run)["model"]
     train = [f"train.{o}" for o in TINY_TRAIN] + ["train.env.max_steps=40", "train.seed=1"]
     weights = {}
-    for name, extra in (("init", [f"init={run}", "std=null"]), ("fresh", [])):
+    for name, extra in (
+        ("init", [f"init={run}", "std=null", "epochs=1", "lr=0.0000001"]),
+        ("kept", [f"init={run}", "std=null", "epochs=0"]),
+        ("fresh", ["epochs=1", "lr=0.0000001"]),
+    ):
         out = tmp_path / name
-        args = [f"plan={plan_json}", *train, "epochs=1", "lr=0.0000001", f"out={out}", *extra]
+        args = [f"plan={plan_json}", *train, f"out={out}", *extra]
         try:
             assert imitate_cli.main(args) == 0, capsys.readouterr().err
         finally:
@@ -216,7 +220,9 @@ def test_imitate_init_clones_into_a_checkpoints_weights(tmp_path, capsys, tiny_c
     # weights, log-std included (std=null keeps it); a fresh start (train.seed=1) is elsewhere
     for k, v in start.items():
         assert torch.allclose(weights["init"][k], v, atol=1e-5), k
+        assert torch.equal(weights["kept"][k], v), k  # epochs=0: the weights as they are
     assert any(not torch.allclose(weights["fresh"][k], v, atol=1e-3) for k, v in start.items())
+    assert "epochs = 0 needs init=" in _exit_2(capsys, f"plan={plan_json}", "epochs=0")
     err = _exit_2(capsys, f"plan={plan_json}", *train, f"init={tmp_path / 'none'}",
                   f"out={tmp_path / 'x'}")  # fmt: skip
     assert err.startswith("error: init = ") and len(err.strip().splitlines()) == 1

@@ -10,7 +10,9 @@ replays its successful action sequences, fits the training config's actor to the
 iteration 0 (the curriculum at its start, a fresh optimizer) with the train config composed from
 ``train.KEY=VALUE`` overrides like ``truckrl train KEY=VALUE`` would, so that ``train
 resume=<out>`` continues it as a run of its own. ``init=CHECKPOINT`` clones into that
-checkpoint's weights instead of a fresh actor-critic (``std=null`` keeps its std): with
+checkpoint's weights instead of a fresh actor-critic (``std=null`` keeps its std; ``epochs=0``
+leaves the weights as they are, since a few Adam steps at the cloning rate can break a trained
+policy): with
 ``train.demos.bc_coeff > 0`` the resumed run is a fine-tune that keeps cloning the plan, for
 example the planner's solutions of the scenes a policy fails (``truckrl plan checkpoint=
 skip_solved=true``, which writes those sequences only). ``truckrl train demos.episodes=N`` (the default
@@ -46,7 +48,11 @@ class ImitateConfig:
     plan: str | None = param(None, doc="JSON written by truckrl plan; required")
     out: str | None = param(None, doc="run dir to create; null: outputs/imitate/<date>/<time>")
     epochs: int = param(
-        _DEMOS.epochs, lo=1, hi=100_000, doc="passes over the demonstration samples"
+        _DEMOS.epochs,
+        lo=0,
+        hi=100_000,
+        doc="passes over the demonstration samples (0: none, for init=: the weights as they "
+        "are, the samples kept for the resumed run's cloning term)",
     )
     lr: float = param(_DEMOS.lr, lo=1e-7, hi=1.0, doc="Adam learning rate")
     batch_size: int = param(_DEMOS.batch_size, lo=1, hi=10_000_000, doc="samples per minibatch")
@@ -71,6 +77,8 @@ class ImitateConfig:
         validate(self)
         if not self.plan:
             raise ConfigError("plan is required: plan=<JSON written by truckrl plan>")
+        if self.epochs == 0 and not self.init:
+            raise ConfigError("epochs = 0 needs init= (without it the weights are untrained)")
 
 
 def run(args: ImitateConfig, overrides: list[str]) -> Path:
@@ -167,12 +175,18 @@ def _clone(args: ImitateConfig, tc: Any, plan: dict, meta: dict) -> tuple[Any, A
     if args.init:
         _load_start(args.init, ac, num_obs, num_beams)
     executed = tc.demos.bc_loss == "executed"  # as the resumed run's cloning term
-    losses = behaviour_clone(ac, samples, args.epochs, args.lr, args.batch_size, tc.seed, executed)
+    losses = []
+    if args.epochs:
+        losses = behaviour_clone(
+            ac, samples, args.epochs, args.lr, args.batch_size, tc.seed, executed
+        )
     if args.std is not None:
         set_action_std(ac, args.std)
-    print(
-        f"behaviour cloning: {args.epochs} epochs, action MSE {losses[0]:.4f} -> {losses[-1]:.4f}"
-    )
+    if losses:
+        print(f"behaviour cloning: {args.epochs} epochs, action MSE {losses[0]:.4f} -> "
+              f"{losses[-1]:.4f}")  # fmt: skip
+    else:
+        print(f"no cloning before training: the weights of {args.init}")
     return ac, samples, kept, losses
 
 
