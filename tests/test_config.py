@@ -80,7 +80,7 @@ def test_gpu_d8_experiment_is_gpu_demos_fine_tuning_the_shipped_policy_up_to_dif
     "preset, base, changes",
     [
         ("finetune_dock", "dock", dict(init="pretrained:dock", start=7.0, top=7.0,
-                                       frames=160_000_000, quality=(7.0, 0.95), episodes=1000,
+                                       frames=160_000_000, quality=(7.0, 0.95), episodes=300,
                                        max_std=0.5, lr_max=3e-4, desired_kl=0.005)),
         ("gpu_uturn", "pretrained_uturn", dict(init="pretrained:uturn", start=4.0, top=6.0,
                                                frames=36_000_000, quality=(6.0, 0.9), episodes=200)),
