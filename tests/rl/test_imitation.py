@@ -71,10 +71,10 @@ def test_cloning_fits_the_mean_and_leaves_std_and_critic(solved):
     assert torch.allclose(ac.action_std(), torch.full((2,), 0.2))
 
 
-@pytest.mark.e2e
-def test_imitate_writes_a_checkpoint_that_train_resumes(tmp_path, capsys):
+def _small_plan(tmp_path, capsys):
+    """A plan file of 3 scenes at difficulty 0 (40-step episodes), written by the plan CLI in
+    process (its CLI has a subprocess test of its own); imitate and train run as users do."""
     plan_json = tmp_path / "plan.json"
-    # plan in process (its CLI has a subprocess test of its own); imitate and train as users do
     threads = torch.get_num_threads()
     try:
         code = plan_cli.main([
@@ -84,6 +84,12 @@ def test_imitate_writes_a_checkpoint_that_train_resumes(tmp_path, capsys):
     finally:
         torch.set_num_threads(threads)
     assert code == 0, capsys.readouterr().err
+    return plan_json
+
+
+@pytest.mark.e2e
+def test_imitate_writes_a_checkpoint_that_train_resumes(tmp_path, capsys):
+    plan_json = _small_plan(tmp_path, capsys)
     assert any(e["success"] for e in json.loads(plan_json.read_text())["per_episode"])
     out = tmp_path / "bc"
     # with the cloning term on: the samples go beside the checkpoint, and the resume uses them
@@ -191,16 +197,8 @@ def test_imitate_init_clones_into_a_checkpoints_weights(tmp_path, capsys, tiny_c
     from truckrl.rl.checkpoint import load_training_state
 
     run, _, _ = tiny_checkpoint
-    plan_json = tmp_path / "plan.json"
+    plan_json = _small_plan(tmp_path, capsys)
     threads = torch.get_num_threads()
-    try:
-        code = plan_cli.main([
-            "episodes=3", "difficulty=0", "planner.compile=false", "planner.samples=32",
-            "planner.iterations=2", "quiet=true", "env.max_steps=40", f"out={plan_json}",
-        ])  # fmt: skip
-    finally:
-        torch.set_num_threads(threads)
-    assert code == 0, capsys.readouterr().err
     start = load_training_state(run)["model"]
     train = [f"train.{o}" for o in TINY_TRAIN] + ["train.env.max_steps=40", "train.seed=1"]
     weights = {}
