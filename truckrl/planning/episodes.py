@@ -194,9 +194,7 @@ def plan_states(
         results[key] = plan[key]
     results["plan_seconds"] = plan["seconds"]
     _scene_keys(results, states, planner.task.reverse)
-    tol_pos, tol_ang = planner.task.tolerances(torch.tensor([float(difficulty)]))
-    tolerance = (float(tol_pos[0]), math.degrees(float(tol_ang[0])))
-    return results, tolerance, planner.task.error_quantities
+    return results, _tolerance(planner, difficulty), planner.task.error_quantities
 
 
 def plan_episodes(
@@ -265,6 +263,12 @@ def plan_episodes(
     return results, tolerance, errors
 
 
+def _tolerance(planner: Planner | GearPlanner, difficulty: float) -> tuple[float, float]:
+    """The goal tolerances at ``difficulty``: (position [m], heading [deg])."""
+    tol_pos, tol_ang = planner.task.tolerances(torch.tensor([float(difficulty)]))
+    return float(tol_pos[0]), math.degrees(float(tol_ang[0]))
+
+
 def _merge_skipped(
     env_cfg: EnvConfig | dict | None,
     states: TensorDictBase,
@@ -309,9 +313,7 @@ def _merge_skipped(
     results["by_source"] = {"planner": by_planner, "extra": first}
     results["searched"] = searched
     _scene_keys(results, states, planner.task.reverse)
-    tol_pos, tol_ang = planner.task.tolerances(torch.tensor([float(difficulty)]))
-    tolerance = (float(tol_pos[0]), math.degrees(float(tol_ang[0])))
-    return results, tolerance, planner.task.error_quantities
+    return results, _tolerance(planner, difficulty), planner.task.error_quantities
 
 
 def category_info(results: dict[str, Any]) -> dict[str, Tensor]:
