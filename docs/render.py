@@ -46,6 +46,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from truckrl.evaluation.interval import wilson_interval
+
 DOCS = Path(__file__).resolve().parent
 DATA = DOCS / "data"
 OUT = DOCS / "_generated"
@@ -78,6 +80,16 @@ Table = tuple[list[str], list[list[str]]]
 def pct(x: float | None) -> str:
     """A fraction in [0, 1] as ``"97.7 %"`` (one decimal); ``None`` as an en dash."""
     return "–" if x is None else f"{100 * x:.1f} %"
+
+
+def interval(rate: float | None, n: int) -> str:
+    """The 95 % interval of a success ``rate`` over ``n`` episodes (Wilson's, as ``truckrl eval``
+    reports it; computed from the rate, so files written before eval recorded it show it too) as
+    ``"94.6–95.8 %"``; ``None`` as an en dash."""
+    if rate is None:
+        return "–"
+    lo, hi = wilson_interval(rate * n, n)
+    return f"{100 * lo:.1f}–{100 * hi:.1f} %"
 
 
 def num(x: float | None) -> str:
@@ -389,12 +401,14 @@ def eval_tables(doc: dict[str, Any]) -> dict[str, Table]:
         k.removesuffix("_mean") for k in doc if k.endswith("_mean") and f"{k[:-5]}_p95" in doc
     ]
     tol = f"{doc['tolerance_position_m']:.3g} m, {doc['tolerance_heading_deg']:.3g}°"
-    header = ["difficulty (tolerance)", "episodes", "success", "collision", "jack-knife", "timeout"]
-    header += [f"{label(e)} mean / p95" for e in errors]
+    header = ["difficulty (tolerance)", "episodes", "success", "95 % interval", "collision"]
+    header += ["jack-knife", "timeout", *(f"{label(e)} mean / p95" for e in errors)]
     row = [
         f"{doc['difficulty']:g} ({tol})",
         f"{doc['episodes']:,}",
-        *(pct(doc.get(k)) for k in ("success_rate", "collision_rate", "jackknife_rate")),
+        pct(doc.get("success_rate")),
+        interval(doc.get("success_rate"), doc["episodes"]),
+        *(pct(doc.get(k)) for k in ("collision_rate", "jackknife_rate")),
         pct(doc.get("timeout_rate")),
         *(f"{num(doc[e + '_mean'])} / {num(doc[e + '_p95'])}" for e in errors),
     ]
@@ -405,9 +419,12 @@ def eval_tables(doc: dict[str, Any]) -> dict[str, Table]:
         for c in cats:
             dim = c["dimension"] if c["dimension"] != last else ""
             last = c["dimension"]
-            rates = ("success_rate", "collision_rate", "jackknife_rate", "timeout_rate")
-            rows.append([dim, c["bin"], f"{c['count']:,}", *(pct(c.get(k)) for k in rates)])
-        header = ["dimension", "bin", "episodes", "success", "collision", "jack-knife", "timeout"]
+            rates = ("collision_rate", "jackknife_rate", "timeout_rate")
+            success = c.get("success_rate")
+            rows.append([dim, c["bin"], f"{c['count']:,}", pct(success),
+                         interval(success, c["count"]), *(pct(c.get(k)) for k in rates)])  # fmt: skip
+        header = ["dimension", "bin", "episodes", "success", "95 % interval", "collision"]
+        header += ["jack-knife", "timeout"]
         tables["-bins"] = (header, rows)
     sm = doc.get("smoothness")
     if sm:

@@ -18,6 +18,7 @@ from truckrl.config.fields import ConfigError
 from truckrl.config.schemas import EvaluateConfig
 from truckrl.evaluate import evaluate
 from truckrl.evaluation.categories import summarize_by_category
+from truckrl.evaluation.interval import wilson_interval
 from truckrl.evaluation.rollout import evaluate_policy
 from truckrl.rl.checkpoint import CheckpointError
 from truckrl.sim.vehicle import sample_vehicle_params
@@ -112,6 +113,10 @@ def test_cli_is_deterministic_and_matches_in_process_run(tiny_checkpoint, tmp_pa
     assert written["tolerance_position_m"] == pytest.approx(15.0)  # 30 m x 2^-1
     res, _, _ = evaluate_policy(ac.actor, tc.env, 1.0, episodes=12, seed=7)
     assert written["success_rate"] == pytest.approx(res["success"].float().mean().item())
+    k = int(res["success"].sum())
+    assert written["success_ci95"] == pytest.approx(list(wilson_interval(k, 12)))
+    lo, hi = written["success_ci95"]
+    assert f"success 95 % interval {lo:.3f}-{hi:.3f} (Wilson, 12 scenes)" in proc.stdout
     assert written["pos_error_m_mean"] == pytest.approx(res["pos_error"].mean().item(), rel=1e-5)
     # p95: linear interpolation between the order statistics, numpy's default percentile
     errors = res["pos_error"].double().numpy()

@@ -92,19 +92,21 @@ def test_evaluation_summary_bins_and_reconstructed_provenance(out):
     )
     summary = (out / "results" / "dock.md").read_text()
     assert summary == (
-        "| difficulty (tolerance) | episodes | success | collision | jack-knife | timeout "
-        "| trailer rear error [m] mean / p95 |\n"
-        "|---|---:|---:|---:|---:|---:|---:|\n"
-        "| 7 (0.15 m, 5.73°) | 1,000 | 81.6 % | 11.4 % | 0.2 % | 6.8 % | 2.62 / 14.6 |\n"
+        "| difficulty (tolerance) | episodes | success | 95 % interval | collision | jack-knife "
+        "| timeout | trailer rear error [m] mean / p95 |\n"
+        "|---|---:|---:|---:|---:|---:|---:|---:|\n"
+        "| 7 (0.15 m, 5.73°) | 1,000 | 81.6 % | 79.1–83.9 % | 11.4 % | 0.2 % | 6.8 % "
+        "| 2.62 / 14.6 |\n"
         "\n" + line
     )
     bins = (out / "results" / "dock-bins.md").read_text()
     assert bins == (
-        "| dimension | bin | episodes | success | collision | jack-knife | timeout |\n"
-        "|---|---|---:|---:|---:|---:|---:|\n"
-        "| neighbours | none | 280 | 87.9 % | 5.0 % | 0.0 % | 7.1 % |\n"
-        "|  | both | 390 | 72.6 % | 20.0 % | 0.4 % | 7.0 % |\n"
-        "| bay width [m] | 3.5-4 | 500 | 79.0 % | 13.0 % | 0.0 % | 8.0 % |\n"
+        "| dimension | bin | episodes | success | 95 % interval | collision | jack-knife "
+        "| timeout |\n"
+        "|---|---|---:|---:|---:|---:|---:|---:|\n"
+        "| neighbours | none | 280 | 87.9 % | 83.5–91.2 % | 5.0 % | 0.0 % | 7.1 % |\n"
+        "|  | both | 390 | 72.6 % | 67.9–76.8 % | 20.0 % | 0.4 % | 7.0 % |\n"
+        "| bay width [m] | 3.5-4 | 500 | 79.0 % | 75.2–82.3 % | 13.0 % | 0.0 % | 8.0 % |\n"
         "\n" + line
     )
 
@@ -158,3 +160,21 @@ def test_an_evaluation_with_smoothness_gets_its_percentile_table(render):
         "| steer rate [rad/s] | 0.0125 | 0.5 |"
     )
     assert "-smoothness" not in render.fragments({**doc, "smoothness": None})
+
+
+def test_an_evaluation_shows_the_success_rates_interval_even_from_an_older_file(render):
+    """Files written before eval recorded the interval get it from their rate and count: 5 of
+    10 -> Wilson's 23.66-76.34 % (R. G. Newcombe, Stat. Med. 17, 1998), 1 of 1 -> 20.7-100 %."""
+    doc = {
+        "difficulty": 6.0, "tolerance_position_m": 0.46875, "tolerance_heading_deg": 0.9375,
+        "episodes": 10, "success_rate": 0.5, "collision_rate": 0.5, "jackknife_rate": 0.0,
+        "timeout_rate": 0.0,
+        "categories": [{"dimension": "turn", "bin": "left", "count": 1, "success_rate": 1.0,
+                        "collision_rate": 0.0, "jackknife_rate": 0.0, "timeout_rate": 0.0}],
+    }  # fmt: skip
+    frags = render.fragments(doc)
+    head, _, row = frags[""].split("\n\n")[0].splitlines()
+    assert head.startswith("| difficulty (tolerance) | episodes | success | 95 % interval |")
+    assert row.startswith("| 6 (0.469 m, 0.938°) | 10 | 50.0 % | 23.7–76.3 % | 50.0 % |")
+    bins = frags["-bins"].split("\n\n")[0].splitlines()
+    assert bins[2] == "| turn | left | 1 | 100.0 % | 20.7–100.0 % | 0.0 % | 0.0 % | 0.0 % |"

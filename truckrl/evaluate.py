@@ -242,6 +242,8 @@ def print_table(s: dict, errors: tuple[Quantity, ...]) -> None:
         f"(tolerance {s['tolerance_position_m']:.3g} m, {s['tolerance_heading_deg']:.3g} deg)"
     )
     print("  ".join(f"{o.name} {s[f'{o.name}_rate']:.3f}" for o in OUTCOMES))
+    lo, hi = s["success_ci95"]
+    print(f"success 95 % interval {lo:.3f}-{hi:.3f} (Wilson, {s['episodes']} scenes)")
     print(f"{'final error':<30}{'mean':>10}{'p95':>10}")
     for q in errors:
         key = f"{q.key}_{q.shown_unit}"

@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from truckrl.evaluation.categories import format_category_table, summarize_by_category
+from truckrl.evaluation.interval import wilson_interval
 from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params
 from truckrl.tasks.intersection.bins import (
     CROSSING_EDGES_DEG,
@@ -223,6 +224,11 @@ def test_summarize_by_category_hand_computed():
     assert a["pos_error_m_p95"] == pytest.approx(3.85)  # 3 + 0.85 * (4 - 3)
     assert a["tractor_heading_error_deg_p95"] == pytest.approx(28.5)  # 20 + 0.85 * 10
     assert a["trailer_heading_error_deg_p95"] == pytest.approx(1.0)
+    # the success rates' 95 % Wilson intervals: 2 of 4 -> centre 0.5, half-width
+    # z / (1 + z^2 / n) * sqrt(p (1 - p) / n + z^2 / (4 n^2)) = 0.34996 (z = 1.95996)
+    assert a["success_ci95"] == pytest.approx([0.15004, 0.84996], abs=1e-4)
+    # 0 of 2 -> [0, z^2 / (n + z^2)] = [0, 3.8415 / 5.8415]
+    assert b["success_ci95"] == pytest.approx([0.0, 0.65762], abs=1e-4)
     # b: a collision and a timeout
     assert (b["success_rate"], b["jackknife_rate"]) == (0.0, 0.0)
     assert b["collision_rate"] == pytest.approx(0.5) and b["timeout_rate"] == pytest.approx(0.5)
@@ -259,6 +265,7 @@ def test_format_category_table():
             "bin": "straight road",
             "count": 4,
             "success_rate": 0.5,
+            "success_ci95": [0.15, 0.85],
             "collision_rate": 0.25,
             "jackknife_rate": 0.25,
             "timeout_rate": 0.0,
@@ -293,7 +300,7 @@ def test_format_category_table():
     ]
     lines = format_category_table(rows).splitlines()
     header = lines[0]
-    for title in ("dimension", "bin", "n", "success %", "collision %", "jack-knife %"):
+    for title in ("dimension", "bin", "n", "success %", "95 % interval", "collision %"):
         assert title in header
     for title in ("timeout %", "p95 pos m", "p95 tractor heading deg", "p95 trailer heading deg"):
         assert title in header
@@ -306,6 +313,7 @@ def test_format_category_table():
         "road",
         "4",
         "50.0",
+        "15.0-85.0",
         "25.0",
         "25.0",
         "0.0",
@@ -314,8 +322,22 @@ def test_format_category_table():
         "1.0",
     ]
     # the dimension is named once per group
-    assert second == ["left", "12", "33.3", "66.7", "0.0", "0.0", "19.50", "5.0", "1.9"]
-    assert third[:4] == ["goal", "distance", "[m]", "25-40"]
+    # rows without an interval (written before rows had one): Wilson's of count and rate,
+    # 4 of 12 -> 13.8-60.9 %, 1 of 1 -> 20.7-100 % (z = 1.96)
+    assert second == [
+        "left",
+        "12",
+        "33.3",
+        "13.8-60.9",
+        "66.7",
+        "0.0",
+        "0.0",
+        "19.50",
+        "5.0",
+        "1.9",
+    ]
+    assert third[:6] == ["goal", "distance", "[m]", "25-40", "1", "100.0"]
+    assert third[6] == "20.7-100.0"
     assert third[-3:] == ["0.12", "0.0", "0.0"]
     assert format_category_table([]).splitlines()[-1] == "(no episodes)"
 
@@ -365,3 +387,32 @@ def test_task_bins_picks_the_intersection_split_or_the_tasks_dimensions():
 
     assert set(task_bins("intersection", hand_info())) == set(episode_bins(hand_info()))
     assert task_bins("tests.tasks.reach", {"trailer_length": torch.ones(3)}) is None
+
+
+@pytest.mark.parametrize(
+    ("k", "n", "lo", "hi"),
+    [
+        # Wilson's score interval at 95 %, as tabulated in R. G. Newcombe, "Two-sided confidence
+        # intervals for the single proportion: comparison of seven methods", Stat. Med. 17
+        # (1998), Table I (method 3) and his worked example 81 / 263
+        (81, 263, 0.2553, 0.3662),
+        (15, 148, 0.0624, 0.1605),
+        (0, 20, 0.0, 0.1611),
+        (1, 29, 0.0061, 0.1718),
+    ],
+)
+def test_wilson_interval_matches_newcombes_table(k, n, lo, hi):
+    got = wilson_interval(k, n)
+    assert got == pytest.approx((lo, hi), abs=5e-5)
+
+
+def test_wilson_interval_edges_and_bad_input():
+    # all or none: the bound on that side is exact; the other is z^2 / (n + z^2) from it
+    assert wilson_interval(0, 10) == (0.0, pytest.approx(3.8415 / 13.8415, abs=1e-5))
+    assert wilson_interval(10, 10) == (pytest.approx(10 / 13.8415, abs=1e-5), 1.0)
+    # narrower at a lower coverage, and a rate times n is rounded to a count
+    assert wilson_interval(81, 263, level=0.9)[0] > 0.2553
+    assert wilson_interval(263 * (81 / 263), 263) == wilson_interval(81, 263)
+    for args, needle in (((1, 0), "n = 0"), ((5, 4), "successes = 5"), ((1, 4, 1.0), "level")):
+        with pytest.raises(ValueError, match=needle):
+            wilson_interval(*args)

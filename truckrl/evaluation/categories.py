@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from truckrl.config.fields import ConfigError
+from truckrl.evaluation.interval import wilson_interval
 from truckrl.tasks import Quantity, task_class
 from truckrl.tasks.goals import POSE_ERRORS
 
@@ -73,6 +74,8 @@ def summarize_by_category(
     Returns:
         One dict per non-empty bin, in the order of ``bins``: "dimension", "bin", "count" (int),
         "success_rate", "collision_rate", "jackknife_rate", "timeout_rate" (fractions in [0, 1]),
+        "success_ci95" (``[lo, hi]``, the success rate's 95 % interval:
+        :func:`~truckrl.evaluation.interval.wilson_interval`),
         "pos_error_m_p95", "tractor_heading_error_deg_p95", "trailer_heading_error_deg_p95"
         (linear-interpolated 95th percentile, as :func:`torch.quantile`); with ``errors``,
         ``"<key>_<shown unit>_p95"`` for each.
@@ -98,6 +101,7 @@ def summarize_by_category(
             row: dict = {"dimension": dim, "bin": name, "count": count}
             for key, rate in OUTCOMES.items():
                 row[f"{rate}_rate"] = results[key][mask].to(torch.float64).mean().item()
+            row["success_ci95"] = list(wilson_interval(int(results["success"][mask].sum()), count))
             for key, unit in units.items():
                 v = results[key][mask].to(torch.float64)
                 row[f"{key}_{unit}_p95"] = torch.quantile(v, 0.95).item()
@@ -109,6 +113,7 @@ def summarize_by_category(
 _COLUMNS = (
     ("n", "count", 6, "d"),
     ("success %", "success_rate", 10, "pct"),
+    ("95 % interval", "success_ci95", 15, "ci"),
     ("collision %", "collision_rate", 12, "pct"),
     ("jack-knife %", "jackknife_rate", 13, "pct"),
     ("timeout %", "timeout_rate", 10, "pct"),
@@ -142,8 +147,14 @@ def format_category_table(rows: Sequence[Mapping]) -> str:
         line = f"{dim if dim != previous else '':<{w_dim}}  {r['bin']!s:<{w_bin}}"
         previous = dim
         for _, key, width, fmt in columns:
-            v = r[key]
-            line += f"{100.0 * v:>{width}.1f}" if fmt == "pct" else f"{v:>{width}{fmt}}"
+            v = r.get(key) if fmt == "ci" else r[key]
+            if fmt == "pct":
+                line += f"{100.0 * v:>{width}.1f}"
+            elif fmt == "ci":  # rows written before the interval was: from count and rate
+                lo, hi = v or wilson_interval(r["success_rate"] * r["count"], r["count"])
+                line += f"{f'{100.0 * lo:.1f}-{100.0 * hi:.1f}':>{width}}"
+            else:
+                line += f"{v:>{width}{fmt}}"
         lines.append(line)
     if not rows:
         lines.append("(no episodes)")

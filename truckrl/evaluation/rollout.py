@@ -17,6 +17,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from truckrl.config.fields import ConfigError
 from truckrl.env import TruckEnv
+from truckrl.evaluation.interval import wilson_interval
 from truckrl.sim.vehicle import trailer_length
 from truckrl.tasks import OUTCOMES, EnvConfig, Quantity, shown
 
@@ -212,11 +213,15 @@ def _results(
     return out
 
 
-def summarize(results: dict[str, Tensor], errors: tuple[Quantity, ...]) -> dict[str, float]:
-    """Outcome rates, mean length and mean / p95 of the final errors over episodes."""
-    out: dict[str, float] = {"episodes": int(results["success"].numel())}
+def summarize(results: dict[str, Tensor], errors: tuple[Quantity, ...]) -> dict[str, Any]:
+    """Outcome rates, the success rate's 95 % interval (``"success_ci95": [lo, hi]``,
+    :func:`~truckrl.evaluation.interval.wilson_interval`), mean length and mean / p95 of the
+    final errors over episodes."""
+    n = int(results["success"].numel())
+    out: dict[str, Any] = {"episodes": n}
     for o in OUTCOMES:
         out[f"{o.name}_rate"] = results[o.flag].float().mean().item()
+    out["success_ci95"] = list(wilson_interval(int(results["success"].sum()), n))
     out["mean_length"] = results["length"].mean().item()
     for q in errors:
         v = results[q.key].to(torch.float64)
