@@ -46,10 +46,13 @@ def test_gpu_demos_experiment_is_demos_with_a_gpu_batch():
     assert (gpu.demos.bc_batch, demos.demos.bc_batch) == (4096, 1024)
     # held-out checks by frames, half as often per frame as on the CPU (4x the batch)
     assert (gpu.log.eval_interval_frames, demos.log.eval_interval_frames) == (10**7, 5 * 10**6)
+    # the cloning term of its documented runs, half the CPU default's length
+    assert (gpu.demos.bc_frames, demos.demos.bc_frames) == (2 * 10**7, 4 * 10**7)
     # everything else is experiment=demos, the training scenes (all crossings) included
     on_cpu = compose_config("train", "experiment=gpu_demos", "device=cpu",
                             "collector.num_envs=1024", "demos.bc_batch=1024",
-                            "log.eval_interval_frames=5000000")  # fmt: skip
+                            "log.eval_interval_frames=5000000",
+                            "demos.bc_frames=40000000")  # fmt: skip
     assert to_config(TrainConfig, on_cpu) == to_config(TrainConfig, demos)
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match=r"^device = 'cuda' but torch sees no CUDA GPU"):

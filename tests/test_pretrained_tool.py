@@ -112,7 +112,10 @@ def test_presets_compose_and_stop_by_frames(task):
 
 def test_the_intersection_preset_is_the_default_run_but_for_its_budget():
     """experiment=demos with task=intersection as ``truckrl train`` runs it (training scenes at
-    crossings included), differing only in how it stops and when it checks."""
+    crossings included), differing only in how it stops and when it checks, and in the cloning
+    term's length, which stays the one the shipped file was trained with."""
+    import yaml
+
     default = asdict(cli.compose_config("train", TrainConfig, []))
     preset = asdict(
         cli.compose_config("train", TrainConfig, ["experiment=pretrained_intersection"])
@@ -120,8 +123,14 @@ def test_the_intersection_preset_is_the_default_run_but_for_its_budget():
     assert (
         preset["train_env"] == default["train_env"] == {"task": {"scene": {"crossing_prob": 1.0}}}
     )
+    shipped = yaml.safe_load(
+        load_checkpoint(TASKS_DIR / "intersection" / "pretrained.pt")["config"]
+    )
+    assert preset["demos"]["bc_frames"] == shipped["demos"]["bc_frames"] == 20_000_000
+    assert default["demos"]["bc_frames"] == 40_000_000
     for cfg in (default, preset):
         cfg.pop("total_frames"), cfg.pop("max_minutes"), cfg["log"].pop("eval_interval_frames")
+        cfg["demos"].pop("bc_frames")
     assert preset == default
 
 
