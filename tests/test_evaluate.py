@@ -104,10 +104,11 @@ def test_cli_is_deterministic_and_matches_in_process_run(tiny_checkpoint, tmp_pa
     run, ac, tc = tiny_checkpoint
     out = tmp_path / "eval.json"
     args = [f"checkpoint={run}", "episodes=12", "seed=7", "difficulty=1", f"output={out}"]
-    proc = run_cli("evaluate", *args, f"hydra.run.dir={tmp_path}")
+    proc = run_cli("evaluate", *args, "threads=1", f"hydra.run.dir={tmp_path}")
     assert proc.returncode == 0, proc.stderr
     printed = json.loads(proc.stdout.strip().splitlines()[-1])
     written = json.loads(out.read_text())
+    assert written["provenance"]["threads"] == 1  # threads= set before the episodes ran
     assert printed["success_rate"] == written["success_rate"]
     assert written["episodes"] == 12 and written["difficulty"] == 1.0
     assert written["tolerance_position_m"] == pytest.approx(15.0)  # 30 m x 2^-1

@@ -251,6 +251,7 @@ CONFIGS = [
     ("train", "x=(", ("cannot parse the override",)),
     ("evaluate", "episodes=abc", ("episodes", "whole number")),
     ("evaluate", "difficulty=-1", ("difficulty",)),
+    ("evaluate", "threads=0", ("threads", "1")),
     ("evaluate", "episodes=5", ("checkpoint is required",)),
     ("play", "view.size_px=5", ("view.size_px",)),
     ("play", "on_done=later", ("on_done",)),

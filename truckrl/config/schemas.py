@@ -360,6 +360,13 @@ class EvaluateConfig:
     episodes: int = param(100, lo=1, hi=10_000_000, doc="one episode per seeded scene")
     seed: int = param(12345, lo=0, hi=SEED_MAX, doc="scene seed: same seed, same scenes")
     device: str = param("cpu", doc="env and policy device")
+    threads: int | None = param(
+        None,
+        lo=1,
+        hi=1024,
+        doc="torch CPU threads (torch.set_num_threads, set before anything runs; null: "
+        "torch's default)",
+    )
     output: str | None = param(
         None,
         doc="JSON file; null: <run dir of the checkpoint>/eval/<difficulty>-<seed>.json "
