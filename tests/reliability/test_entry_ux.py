@@ -25,7 +25,8 @@ from truckrl.rl.progress import Progress, stop_lines
     [
         ("train", ["stop_difficulty=null", "demos.episodes=600", "demos.bc_coeff=1", "max_minutes=60", "total_frames=null", "experiment=",
                    "control=", "task=", "device=", "seed=", "resume=", "Examples"], []),
-        ("evaluate", ["checkpoint=", "difficulty=", "episodes=", "seed=", "Examples"], ["ppo."]),
+        ("evaluate", ["checkpoint=", "difficulty=", "episodes=", "seed=", "threads=null", "Examples"],
+         ["ppo."]),
         ("play", ["checkpoint=", "headless=true", "record=", "difficulty=", "Keys", "Examples"],
          ["ppo.", "collector.", "hydra", "max_minutes"]),
     ],
