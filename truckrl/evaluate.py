@@ -98,12 +98,12 @@ def evaluate(ec: EvaluateConfig) -> dict:
             cannot be written: before any episode runs when the check finds it, or after
             printing the results when the final write fails.
     """
-    import torch
-
     from truckrl.rl.checkpoint import resolve_checkpoint
     from truckrl.rl.policy_specs import spec_of
 
     if ec.threads is not None:  # before any torch work, as truckrl train does
+        import torch
+
         torch.set_num_threads(ec.threads)
     spec = spec_of(ec.policy, ec.checkpoint)
     if ec.checkpoint:
