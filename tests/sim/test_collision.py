@@ -5,7 +5,7 @@ import math
 import numpy as np
 import torch
 
-from truckrl.sim.collision import contour_collides, truck_collides
+from truckrl.sim.collision import contour_collides, truck_collides, truck_collides_sparse
 from truckrl.sim.geometry import (
     polygon_segments,
     rectangle_corners,
@@ -13,7 +13,12 @@ from truckrl.sim.geometry import (
     segments_intersect,
     to_local,
 )
-from truckrl.sim.vehicle import VehicleConfig, sample_vehicle_params, vehicle_outline
+from truckrl.sim.vehicle import (
+    VehicleConfig,
+    sample_vehicle_params,
+    truck_boxes,
+    vehicle_outline,
+)
 
 
 def _random_boxes(n, gen):
@@ -242,3 +247,53 @@ def test_box_overlap_same_booleans_as_the_where_form():
     want = _reference_box_overlap(segs, *box, mask=mask)
     assert torch.equal(got, want)
     assert 0.1 < want.float().mean() < 0.9
+
+
+def test_sparse_collision_gives_the_dense_answer_bit_for_bit():
+    # poses at ~1 km from the origin (float32 round-off of a scene far out), segments near the
+    # truck or far, short or long, and grazing ones: from a corner of a body straight away from
+    # the body's centre, so the segment's bounding circle just touches the body's (the cull's
+    # tightest case), some 1 um inside the corner, some 1 um outside
+    gen = torch.Generator().manual_seed(3)
+    n, e = 600, 40
+    params = sample_vehicle_params(VehicleConfig(), n, gen)
+    pose = torch.zeros(n, 4)
+    pose[:, :2] = 1000.0 + torch.rand(n, 2, generator=gen) * 20 - 10
+    pose[:, 2] = (torch.rand(n, generator=gen) * 2 - 1) * math.pi
+    pose[:, 3] = (torch.rand(n, generator=gen) * 2 - 1) * 1.2
+    mid = pose[:, None, :2] + (torch.rand(n, e, 2, generator=gen) * 2 - 1) * 30.0
+    length = torch.rand(n, e, generator=gen) * torch.where(torch.arange(e) % 2 == 0, 1.0, 40.0)
+    ang = torch.rand(n, e, generator=gen) * 2 * math.pi
+    half = 0.5 * length[..., None] * torch.stack((ang.cos(), ang.sin()), -1)
+    segs = torch.cat((mid - half, mid + half), -1)
+    graze = []
+    for box in truck_boxes(pose, params)[:2]:
+        corners = rectangle_corners(*box)  # [n, 4, 2]
+        centre = corners.mean(-2, keepdim=True)
+        out = corners - centre
+        out = out / out.norm(dim=-1, keepdim=True)
+        for shift in (-1e-6, 0.0, 1e-6):
+            start = corners + shift * out
+            graze.append(torch.cat((start, start + 5.0 * out), -1))  # [n, 4, 4]
+    segs = torch.cat((segs, *graze), 1)
+    mask = torch.rand(segs.shape[:2], generator=gen) > 0.1
+    # one pose per (pose, segment) pair, so each pair gets its own answer
+    rep = {k: v.repeat_interleave(segs.shape[1]) for k, v in params.items()}
+    one = (pose.repeat_interleave(segs.shape[1], 0), rep, segs.reshape(-1, 1, 4))
+    dense, sparse = truck_collides(*one), truck_collides_sparse(*one)
+    assert 0.1 < dense.float().mean() < 0.6
+    graze_hits = dense.view(n, -1)[:, e:]
+    assert graze_hits.any() and not graze_hits.all()
+    assert torch.equal(sparse, dense)
+    pair_mask = mask.reshape(-1, 1)
+    masked = truck_collides(*one, pair_mask)
+    assert (dense & ~masked).any()  # masked-out segments that touch
+    assert torch.equal(truck_collides_sparse(*one, pair_mask), masked)
+    batched = truck_collides(pose, params, segs, mask)
+    assert torch.equal(truck_collides_sparse(pose, params, segs, mask), batched)
+    assert torch.equal(
+        truck_collides_sparse(pose, params, segs), truck_collides(pose, params, segs)
+    )
+    # no segment near anything: every pose is free
+    far = segs + 500.0
+    assert not truck_collides_sparse(pose, params, far, mask).any()

@@ -35,7 +35,7 @@ def cross2(ax: Tensor, ay: Tensor, bx: Tensor, by: Tensor) -> Tensor:
 def rotate(xy: Tensor, angle: Tensor) -> Tensor:
     """Rotate points ``xy [..., 2]`` counter-clockwise by ``angle [...]`` [rad] about the origin."""
     c, s = torch.cos(angle), torch.sin(angle)
-    return torch.stack(_rotated(c, s, xy[..., 0], xy[..., 1]), dim=-1)
+    return torch.stack(rotated(c, s, xy[..., 0], xy[..., 1]), dim=-1)
 
 
 def to_local(xy: Tensor, origin: Tensor, heading: Tensor) -> Tensor:
@@ -45,9 +45,9 @@ def to_local(xy: Tensor, origin: Tensor, heading: Tensor) -> Tensor:
     heading computed once (``_once``): under ``torch.compile`` inductor otherwise recomputes
     them for every one of the ``P`` points it rotates.
     """
-    c, s = _frame(heading)
+    c, s = heading_frame(heading)
     p = xy - origin.unsqueeze(-2)
-    return torch.stack(_rotated(c, s, p[..., 0], p[..., 1]), dim=-1)
+    return torch.stack(rotated(c, s, p[..., 0], p[..., 1]), dim=-1)
 
 
 def segments_to_local(
@@ -61,10 +61,10 @@ def segments_to_local(
     loop with strided stores; separate coordinates fuse into the body clips instead, and the LiDAR
     stacks them coordinate-major with contiguous stores.
     """
-    c, s = _frame(heading)
+    c, s = heading_frame(heading)
     ox, oy = origin[..., 0:1], origin[..., 1:2]  # [..., 1]
-    x0, y0 = _rotated(c, s, segments[..., 0] - ox, segments[..., 1] - oy)
-    x1, y1 = _rotated(c, s, segments[..., 2] - ox, segments[..., 3] - oy)
+    x0, y0 = rotated(c, s, segments[..., 0] - ox, segments[..., 1] - oy)
+    x1, y1 = rotated(c, s, segments[..., 2] - ox, segments[..., 3] - oy)
     return x0, y0, x1, y1
 
 
@@ -74,13 +74,13 @@ def unit_vectors(angles: Tensor) -> Tensor:
     return _once(torch.stack((torch.cos(angles), torch.sin(angles)), dim=-1))
 
 
-def _frame(heading: Tensor) -> tuple[Tensor, Tensor]:
+def heading_frame(heading: Tensor) -> tuple[Tensor, Tensor]:
     """Cosine and sine ``[..., 1]`` of ``-heading [...]`` (:func:`unit_vectors`)."""
     cs = unit_vectors(-heading.unsqueeze(-1))
     return cs[..., 0], cs[..., 1]
 
 
-def _rotated(c: Tensor, s: Tensor, x: Tensor, y: Tensor) -> tuple[Tensor, Tensor]:
+def rotated(c: Tensor, s: Tensor, x: Tensor, y: Tensor) -> tuple[Tensor, Tensor]:
     """``(x, y)`` rotated by the angle of cosine ``c`` and sine ``s`` (broadcasting)."""
     return c * x - s * y, s * x + c * y
 
@@ -331,6 +331,37 @@ def ray_distance_from_origin(
     return dist
 
 
+def box_clip(
+    x0: Tensor, y0: Tensor, x1: Tensor, y1: Tensor, front: Tensor, rear: Tensor, half_width: Tensor
+) -> Tensor:
+    """Whether each segment ``(x0, y0)-(x1, y1)``, in a box's frame (its reference point at the
+    origin, its heading along +x), shares a point with the filled box ``-rear <= x <= front``,
+    ``|y| <= half_width`` [m] (Liang-Barsky clip; closed sets, touching counts). Every argument
+    broadcasts to the segments' shape; the result is bool of that shape."""
+    dx, dy = x1 - x0, y1 - y0
+    eps = 1e-6  # [m] closed-set slack, as in segments_intersect
+
+    def slab(p0: Tensor, d: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        # Parameter interval [t_in, t_out] of the segment inside lo - eps <= p <= hi + eps, and
+        # whether a segment parallel to the slab lies outside it (then there is no interval).
+        # A parallel segment inside gets the neutral (-inf, +inf); masked_fill writes the same
+        # values as a where against scalars, with fewer and cheaper passes.
+        lo, hi = lo - eps, hi + eps
+        flat = d.abs() <= 1e-9
+        safe = d.masked_fill(flat, 1.0)
+        t1, t2 = (lo - p0) / safe, (hi - p0) / safe
+        t_in = torch.minimum(t1, t2).masked_fill_(flat, -math.inf)
+        t_out = torch.maximum(t1, t2).masked_fill_(flat, math.inf)
+        outside = flat & ~((p0 >= lo) & (p0 <= hi))
+        return t_in, t_out, outside
+
+    tx_in, tx_out, x_out = slab(x0, dx, -rear, front)
+    ty_in, ty_out, y_out = slab(y0, dy, -half_width, half_width)
+    t_in = torch.maximum(tx_in, ty_in).clamp_min_(0.0)
+    t_out = torch.minimum(tx_out, ty_out).clamp_max_(1.0)
+    return (t_in <= t_out) & ~(x_out | y_out)
+
+
 def segment_box_overlap(
     segments: Tensor,
     cx: Tensor,
@@ -357,28 +388,8 @@ def segment_box_overlap(
         ``[..., E]`` bool (closed sets: touching counts).
     """
     x0, y0, x1, y1 = segments_to_local(segments, torch.stack((cx, cy), -1), heading)  # [..., E]
-    dx, dy = x1 - x0, y1 - y0
-    eps = 1e-6  # [m] closed-set slack, as in segments_intersect
-
-    def slab(p0: Tensor, d: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        # Parameter interval [t_in, t_out] of the segment inside lo - eps <= p <= hi + eps, and
-        # whether a segment parallel to the slab lies outside it (then there is no interval).
-        # A parallel segment inside gets the neutral (-inf, +inf); masked_fill writes the same
-        # values as a where against scalars, with fewer and cheaper passes.
-        lo, hi = lo.unsqueeze(-1) - eps, hi.unsqueeze(-1) + eps
-        flat = d.abs() <= 1e-9
-        safe = d.masked_fill(flat, 1.0)
-        t1, t2 = (lo - p0) / safe, (hi - p0) / safe
-        t_in = torch.minimum(t1, t2).masked_fill_(flat, -math.inf)
-        t_out = torch.maximum(t1, t2).masked_fill_(flat, math.inf)
-        outside = flat & ~((p0 >= lo) & (p0 <= hi))
-        return t_in, t_out, outside
-
-    tx_in, tx_out, x_out = slab(x0, dx, -rear, front)
-    ty_in, ty_out, y_out = slab(y0, dy, -half_width, half_width)
-    t_in = torch.maximum(tx_in, ty_in).clamp_min_(0.0)
-    t_out = torch.minimum(tx_out, ty_out).clamp_max_(1.0)
-    hit = (t_in <= t_out) & ~(x_out | y_out)
+    extents = (t.unsqueeze(-1) for t in (front, rear, half_width))
+    hit = box_clip(x0, y0, x1, y1, *extents)
     if mask is not None:
         hit = hit & mask
     return hit

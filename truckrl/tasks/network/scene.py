@@ -35,7 +35,7 @@ from the link's entry (``rear``: the truck's extent behind its rear axle), the *
 ahead). The curriculum (:meth:`~truckrl.tasks.network.task.NetworkTask.on_reset`) picks the start on ``L_{J-j}`` for a
 route through ``j`` junctions. A chain is kept when every one of these poses
 
-* touches no curb (:func:`~truckrl.sim.collision.truck_collides` on the curb window of its
+* touches no curb (:func:`~truckrl.sim.collision.truck_collides_sparse` on the curb window of its
   route stretch, below: every curb the truck can touch is in it),
 * keeps its tractor and trailer boxes outside every junction zone (a disc
   :func:`~truckrl.sim.network.traffic.junction_zones`, reaching ``zone_margin`` beyond the
@@ -82,7 +82,7 @@ import torch
 from torch import Tensor
 
 from truckrl.config.fields import ConfigError, param, validate
-from truckrl.sim.collision import truck_collides
+from truckrl.sim.collision import truck_collides_sparse
 from truckrl.sim.geometry import wrap_angle
 from truckrl.sim.network.compose import Network, block_params, grow, socket_count
 from truckrl.sim.network.config import (
@@ -576,7 +576,7 @@ def pose_ok(
     E, 4]`` (valid where ``mask [n, E]``) and keeps its tractor and trailer outside every
     junction zone ``(centre [n, Z, 2], radius [n, Z], valid [n, Z])``."""
     pose4 = torch.cat((pose, torch.zeros_like(pose[:, :1])), -1)
-    free = ~truck_collides(pose4, params, segments, mask)
+    free = ~truck_collides_sparse(pose4, params, segments, mask)
     centre, radius, zmask = zones
     tractor, trailer, _ = truck_boxes(pose4, params)
     for box in (tractor, trailer):
