@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 
 import numpy as np
 import pytest
@@ -244,10 +245,13 @@ def test_late_write_failure_prints_the_results_first(
 
 
 def test_missing_checkpoint_is_one_line(tmp_path, capsys):
+    before = logging.getLogger().handlers[:]
     r = run_main(
         capsys, "evaluate", f"checkpoint={tmp_path / 'nope.pt'}", f"hydra.run.dir={tmp_path}"
     )
     assert_one_line_error(r, "nope.pt")
+    # the harness leaves no handler on this test's captured streams for a later test to log to
+    assert logging.getLogger().handlers == before
 
 
 def test_corrupt_checkpoint_raises_checkpoint_error(tiny_checkpoint, tmp_path):

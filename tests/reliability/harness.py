@@ -9,6 +9,7 @@ processes, start-up time) run as subprocesses in the tests that need them.
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import signal
 import sys
@@ -111,6 +112,10 @@ def run_main(capsys, module: str, *args: str) -> Result:
     mod = importlib.import_module(f"truckrl.{module}")
     argv, threads = sys.argv, torch.get_num_threads()  # play sets the thread count
     handlers = {s: signal.getsignal(s) for s in SIGNALS.values()}  # train ignores them at exit
+    # Hydra points the root logger at this test's captured streams; a later test logging
+    # through those handlers would write to closed files
+    root = logging.getLogger()
+    log_handlers, log_level = root.handlers[:], root.level
     sys.argv = [f"truckrl/{module}.py", *args]
     capsys.readouterr()
     code = 0
@@ -123,6 +128,11 @@ def run_main(capsys, module: str, *args: str) -> Result:
         torch.set_num_threads(threads)
         for s, h in handlers.items():
             signal.signal(s, h)
+        for h in root.handlers:
+            if h not in log_handlers:
+                h.close()
+        root.handlers[:] = log_handlers
+        root.setLevel(log_level)
         with contextlib.suppress(Exception):
             from hydra.core.global_hydra import GlobalHydra
 
