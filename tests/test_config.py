@@ -85,8 +85,9 @@ def test_gpu_d8_experiment_is_gpu_demos_fine_tuning_the_shipped_policy_up_to_dif
         ("finetune_dock", "dock", dict(init="pretrained:dock", start=7.0, top=7.0,
                                        frames=160_000_000, quality=(7.0, 0.95), episodes=300,
                                        max_std=0.5, lr_max=3e-4, desired_kl=0.005)),
-        ("gpu_uturn", "pretrained_uturn", dict(init="pretrained:uturn", start=4.0, top=6.0,
-                                               frames=36_000_000, quality=(6.0, 0.9), episodes=200)),
+        ("finetune_uturn", "pretrained_uturn", dict(init="pretrained:uturn", start=4.0, top=6.0,
+                                                    frames=108_000_000, quality=(6.0, 0.9),
+                                                    episodes=200)),
         ("finetune_intersection", "pretrained_intersection",
          dict(init="pretrained:intersection", start=6.0, top=6.0, frames=50_000_000,
               quality=(6.0, 0.99), episodes=1000, max_std=0.3, lr_max=3e-4, desired_kl=0.005,
@@ -96,7 +97,7 @@ def test_gpu_d8_experiment_is_gpu_demos_fine_tuning_the_shipped_policy_up_to_dif
 def test_fine_tune_presets_change_their_task_preset_only_where_their_file_says(
     preset, base, changes
 ):
-    """experiment=finetune_dock / gpu_uturn / finetune_intersection change their task preset
+    """experiment=finetune_dock / finetune_uturn / finetune_intersection change their task preset
     only where their file says:
     the shipped weights, 4,096 trucks, the curriculum's start and cap, quality at the issue's
     target, held-out checks every 5 M frames, a frame budget (the CPU fine-tunes: the std bound
@@ -135,16 +136,17 @@ def test_fine_tune_presets_change_their_task_preset_only_where_their_file_says(
     assert got == expected
 
 
-@pytest.mark.parametrize("preset, base", [("gpu_dock", "finetune_dock"), ("gpu_uturn", None)])
+@pytest.mark.parametrize(
+    "preset, base", [("gpu_dock", "finetune_dock"), ("gpu_uturn", "finetune_uturn")]
+)
 def test_gpu_reversing_presets_need_a_gpu(preset, base):
-    """experiment=gpu_dock is finetune_dock on a CUDA device; both GPU presets stop with one
-    line where torch sees no GPU."""
+    """experiment=gpu_dock and gpu_uturn are finetune_dock and finetune_uturn on a CUDA device;
+    both stop with one line where torch sees no GPU."""
     import torch
 
-    if base is not None:
-        got = to_config(TrainConfig, compose_config("train", f"experiment={preset}", "device=cpu"))
-        ref = to_config(TrainConfig, compose_config("train", f"experiment={base}"))
-        assert got == ref
+    got = to_config(TrainConfig, compose_config("train", f"experiment={preset}", "device=cpu"))
+    ref = to_config(TrainConfig, compose_config("train", f"experiment={base}"))
+    assert got == ref
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match=r"^device = 'cuda' but torch sees no CUDA GPU"):
             to_config(TrainConfig, compose_config("train", f"experiment={preset}"))
