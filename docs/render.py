@@ -14,7 +14,8 @@ Kinds of file, told apart by their keys:
   mean, 95 % confidence interval and per-seed values (suffix ``""``), and the same per bin
   (``-bins``). All of them are also joined, in file-name order, into ``<out>/seeds.md``, which
   says which command writes one when there is none.
-* ``"benchmark": "env"`` (``truckrl bench env``): env-steps/s per layout, eager and compiled.
+* ``"benchmark": "env"`` (``truckrl bench env``): env-steps/s per layout, eager and compiled
+  (``""``); with ``parts=true``, the milliseconds per step of each part of the step (``-parts``).
 * ``"benchmark": "train"`` (``truckrl bench train``): the median training iteration and its parts.
 * ``"benchmark": "lidar"`` (``truckrl bench lidar``): time per scan (``""``), scans/s (``-scans``).
 * ``"benchmark": "trainers"`` (``truckrl bench trainers``): one row per trainer and seed, by
@@ -184,6 +185,7 @@ def _kv(key: str, v: Any) -> str:
 #: that do not change what is measured, or paths).
 BENCH_KEYS = {
     "env": (
+        "tasks",
         "envs",
         "parallel_envs",
         "workers",
@@ -192,6 +194,7 @@ BENCH_KEYS = {
         "compile",
         "collector",
         "device",
+        "parts",
     ),
     "train": ("iterations", "warmup"),
     "lidar": ("quick", "beams", "segments", "envs", "device", "compile"),
@@ -316,7 +319,44 @@ def env_tables(doc: dict[str, Any]) -> dict[str, Table]:
         if paper:
             row.append(f"{max(by_mode.values()) / paper:,.1f}")
         rows.append(row)
-    return {"": (header, rows)}
+    tables = {"": (header, rows)}
+    parts = env_parts_table(doc, tasks)
+    if parts is not None:
+        tables["-parts"] = parts
+    return tables
+
+
+#: ``bench env parts=true``'s parts of a step (truckrl.env.timing), in the order shown.
+ENV_PARTS = ("draw", "prepare", "restart", "transition", "other", "total")
+
+
+def env_parts_table(doc: dict[str, Any], tasks: bool) -> Table | None:
+    """``bench env parts=true``: ms per step of each part of each row that has them, and over
+    several tasks the ratio to the first task's steps/s with the episode draws left out of both
+    (as the run reports it); ``None`` without parts."""
+    rows = [r for r in doc["rows"] if r.get("parts_ms")]
+    if not rows:
+        return None
+    ref = next((k for k in rows[0] if k.startswith("x ") and k.endswith(" without draws")), None)
+    header = [
+        "task" if tasks else "trucks",
+        "episode draws",
+        "their preparation",
+        "restarts",
+        "transition",
+        "the rest",
+        "total",
+    ]
+    if tasks and ref:
+        header.append(f"× {ref[2 : -len(' without draws')]}, draws left out")
+    body = []
+    for r in rows:
+        ms = r["parts_ms"]
+        row = [r["task"] if tasks else f"{r['trucks']:,}", *(f"{ms[k]:.2f}" for k in ENV_PARTS)]
+        if tasks and ref:
+            row.append(pct(r.get(ref)))
+        body.append(row)
+    return header, body
 
 
 #: ``bench train``'s per-iteration spans, in the order shown.

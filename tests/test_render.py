@@ -35,6 +35,8 @@ def out(render, tmp_path):
 def test_the_out_folder_holds_exactly_the_fragments(out):
     names = sorted(str(p.relative_to(out)) for p in out.rglob("*.md"))
     assert names == [
+        "benchmarks/env-parts-parts.md",
+        "benchmarks/env-parts.md",
         "benchmarks/env-tasks.md",
         "benchmarks/env.md",
         "results/dock-bins.md",
@@ -134,6 +136,23 @@ def test_bench_env_over_several_tasks_names_each_task_and_its_ratio_to_intersect
         "| intersection | one batched TruckEnv | 1 × 1,024 | – | 400,000 | 100.0 % |\n"
         "| network | one batched TruckEnv | 1 × 1,024 | – | 60,000 | 15.0 % |"
     )
+
+
+def test_bench_env_parts_get_their_own_table_with_the_ratio_without_draws(out):
+    """``parts=true``: ms per step of each part, per task, and the ratio to the first task with
+    the draws left out of both, as the record holds them (the fixture's numbers)."""
+    parts = (out / "benchmarks" / "env-parts-parts.md").read_text()
+    table, line = parts.split("\n\n")
+    assert table == (
+        "| task | episode draws | their preparation | restarts | transition | the rest | total "
+        "| × intersection, draws left out |\n"
+        "|---|---:|---:|---:|---:|---:|---:|---:|\n"
+        "| intersection | 0.25 | 0.05 | 0.50 | 3.50 | 0.70 | 5.00 | 100.0 % |\n"
+        "| network | 5.25 | 0.20 | 1.50 | 8.00 | 1.05 | 16.00 | 40.0 % |"
+    )
+    assert "tasks=[intersection,network]" in line and "parts=true" in line
+    # a run without parts has no such fragment
+    assert not (out / "benchmarks" / "env-tasks-parts.md").exists()
 
 
 def test_an_unknown_file_is_refused_by_name(render, tmp_path):

@@ -52,6 +52,7 @@ def _in_process(capsys, *argv: str) -> tuple[int, str, str]:
         (["tasks=[intersection]", "task=dock"], "tasks = ['intersection']: not with task"),
         (["difficulty=31"], "difficulty = 31"),
         (["difficulty=3", "scaling=true"], "difficulty = 3: scaling, peers and gym"),
+        (["parts=true", "gym=true"], "parts=true times the batched rows"),
         (["--steps", "2"], "'--steps'"),
         (["no_such_key=1"], "unknown field(s) ['no_such_key']"),
     ],
@@ -170,6 +171,50 @@ def test_benchmark_names_are_checked_and_listed(capsys):
     assert main(["--help"]) == 0
     out = capsys.readouterr().out
     assert all(f"  {name} " in out for name in ("env", "lidar", "train"))
+
+
+def test_parts_split_each_runs_step_time_and_give_the_ratio_without_draws(tmp_path, capsys):
+    """parts=true: each task row holds the median ms per step of each part, which add up to its
+    total, and ``x <first task> without draws``, the median over the rounds of the first task's
+    step time over this one's, each with its run's draws taken out."""
+    import statistics
+
+    from truckrl.bench import env as bench_env
+
+    argv = ["quick=true", "tasks=[intersection,dock]", "envs=[4]", "steps=6", "warmup=1"]
+    runs = []
+    real, make = bench_env.steps_per_second_parts, bench_env._make_env
+
+    def recorded(*args):
+        runs.append(real(*args))
+        return runs[-1]
+
+    def short_episodes(*args, **kwargs):
+        # every truck restarts every 2 steps from a pool of 4: both tasks draw in every run
+        return make(*args, overrides={"max_steps": 2, "episode_pool": 4}, **kwargs)
+
+    bench_env.steps_per_second_parts, bench_env._make_env = recorded, short_episodes
+    try:
+        bench_env.run(bench_env.parse([*argv, "repeats=3", "parts=true", f"out={tmp_path}"]))
+    finally:
+        bench_env.steps_per_second_parts, bench_env._make_env = real, make
+    assert "dock / intersection at N=4, draws left out:" in capsys.readouterr().out
+    record = json.loads(next(tmp_path.glob("env-*.json")).read_text())
+    first, second = record["rows"]
+    parts = ("draw", "prepare", "restart", "transition", "other", "total")
+    for i, row in enumerate((first, second)):
+        mine = [r[2] for r in runs[i::2]]  # the runs alternate: intersection, dock, ...
+        assert row["parts_ms"] == {k: statistics.median(m[k] for m in mine) for k in parts}
+        for m in mine:
+            assert sum(m[k] for k in parts[:-1]) == pytest.approx(m["total"])
+            assert min(m[k] for k in parts[:-2]) > 0.0  # every part ran in every run
+    bare = [
+        (a[2]["total"] - a[2]["draw"]) / (b[2]["total"] - b[2]["draw"])
+        for a, b in zip(runs[0::2], runs[1::2], strict=True)
+    ]
+    assert second["x intersection without draws"] == pytest.approx(statistics.median(bare))
+    assert first["x intersection without draws"] == 1.0
+    assert "parts_ms" not in record["table"]
 
 
 def test_difficulty_is_where_the_envs_step(tmp_path, capsys):

@@ -123,6 +123,10 @@ class EnvBenchConfig:
         (), min_len=0,
         doc="task folders timed back to back at each batched N, alternating (instead of task)",
     )  # fmt: skip
+    parts: bool = param(
+        False, doc="batched rows: also the ms per step of each part of the step (episode draws, "
+        "their preparation, restarts, the transition, the rest; truckrl.env.timing)",
+    )  # fmt: skip
     difficulty: float = param(
         0.0, lo=0.0, hi=MAX_DIFFICULTY,
         doc="curriculum difficulty the envs step at (where a task's scenes grow with it: "
@@ -164,6 +168,8 @@ def parse(argv: list[str]) -> EnvBenchConfig:
             fail(str(e).replace("env.task.name", "task", 1))
         if args.scaling or args.peers or args.gym:
             fail(f"task = {args.task!r}: scaling, peers and gym measure the default task only")
+    if args.parts and (args.scaling or args.peers or args.gym):
+        fail("parts=true times the batched rows: not with scaling, peers or gym")
     if args.difficulty and (args.scaling or args.peers or args.gym):
         fail(f"difficulty = {args.difficulty:g}: scaling, peers and gym step at difficulty 0")
     if args.tasks:
@@ -219,6 +225,52 @@ def steps_per_second(env: EnvBase, steps: int, warmup: int) -> tuple[float, floa
     if env.device.type == "cuda":
         torch.cuda.synchronize(env.device)
     return env.batch_size.numel() * steps / (time.perf_counter() - t0), warm
+
+
+def steps_per_second_parts(
+    env: TruckEnv, steps: int, warmup: int
+) -> tuple[float, float, dict[str, float]]:
+    """:func:`steps_per_second` of a batched ``TruckEnv`` with the timed loop's wall time split
+    into the parts of :mod:`truckrl.env.timing`: env-steps/s, the warm-up seconds and
+    ``{part: ms per step}`` (``other``: the rest; ``total``: all of it)."""
+    from truckrl.env.timing import timed_parts
+
+    t0 = time.perf_counter()
+    td = env.reset()
+    for _ in range(warmup):
+        td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))[1]
+    warm = time.perf_counter() - t0
+    with timed_parts(env) as parts:
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))[1]
+        if env.device.type == "cuda":
+            torch.cuda.synchronize(env.device)
+        wall = time.perf_counter() - t0
+    ms = {k: 1e3 * v / steps for k, v in parts.as_dict().items()}
+    ms["other"] = 1e3 * wall / steps - sum(ms.values())
+    ms["total"] = 1e3 * wall / steps
+    return env.batch_size.numel() * steps / wall, warm, ms
+
+
+def _measure(env: TruckEnv, args: EnvBenchConfig) -> tuple[float, float, dict[str, float] | None]:
+    """One measurement of a batched row: :func:`steps_per_second`, or with ``parts=true``
+    :func:`steps_per_second_parts`."""
+    if args.parts:
+        return steps_per_second_parts(env, args.steps, args.warmup)
+    return (*steps_per_second(env, args.steps, args.warmup), None)
+
+
+def _median_parts(runs: list[dict[str, float] | None]) -> dict[str, float] | None:
+    """Each part's median over the runs (ms per step), or ``None`` without parts."""
+    if runs[0] is None:
+        return None
+    return {k: statistics.median(r[k] for r in runs) for k in runs[0]}  # type: ignore[index]
+
+
+def _print_parts(label: str, ms: dict[str, float]) -> None:
+    cells = "  ".join(f"{k} {v:.2f}" for k, v in ms.items())
+    print(f"  {label}: ms per step: {cells}", flush=True)
 
 
 def gym_steps_per_second(venv, steps: int, warmup: int, seed: int) -> tuple[float, float]:
@@ -359,8 +411,11 @@ def _throughput_rows(args: EnvBenchConfig, compiled: bool, rows: list[dict]) -> 
             n, compiled, args.device, args.seed, task=args.task, difficulty=args.difficulty
         )
         if not args.gym:
-            sps, warm = steps_per_second(env, args.steps, args.warmup)
+            sps, warm, ms = _measure(env, args)
             _record(rows, "batched", 1, n, compiled, sps, warm)
+            if ms is not None:
+                rows[-1]["parts_ms"] = ms
+                _print_parts(f"N={n}", ms)
             continue
         venv = _make_gym(n, compiled, args.device, args.seed)
         torchrl_runs, gym_runs = [], []
@@ -402,10 +457,10 @@ def _task_rows(args: EnvBenchConfig, compiled: bool, n: int, rows: list[dict]) -
         )
         for i, t in enumerate(args.tasks)
     ]
-    runs: list[list[tuple[float, float]]] = [[] for _ in envs]
+    runs: list[list[tuple[float, float, dict[str, float] | None]]] = [[] for _ in envs]
     for _ in range(args.repeats):
         for env, task_runs in zip(envs, runs, strict=True):
-            task_runs.append(steps_per_second(env, args.steps, args.warmup))
+            task_runs.append(_measure(env, args))
     ref = f"x {args.tasks[0]}"
     for task, task_runs in zip(args.tasks, runs, strict=True):
         sps = statistics.median(r[0] for r in task_runs)
@@ -415,6 +470,22 @@ def _task_rows(args: EnvBenchConfig, compiled: bool, n: int, rows: list[dict]) -
         pairs = [r[0] / f[0] for f, r in zip(runs[0], task_runs, strict=True)]
         rows[-1][ref] = statistics.median(pairs)
         print(f"  {task} / {args.tasks[0]} at N={n}: {rows[-1][ref]:.4f}", flush=True)
+        ms = _median_parts([r[2] for r in task_runs])
+        if ms is not None:
+            rows[-1]["parts_ms"] = ms
+            _print_parts(task, ms)
+            # the same ratio with each run's episode draws left out of both tasks' step time:
+            # what the task's step costs beside the first task's, its scene generator aside
+            bare = [
+                (f[2]["total"] - f[2]["draw"]) / (r[2]["total"] - r[2]["draw"])  # type: ignore[index]
+                for f, r in zip(runs[0], task_runs, strict=True)
+            ]
+            rows[-1][f"{ref} without draws"] = statistics.median(bare)
+            print(
+                f"  {task} / {args.tasks[0]} at N={n}, draws left out: "
+                f"{rows[-1][f'{ref} without draws']:.4f}",
+                flush=True,
+            )
 
 
 def _summarize(
@@ -431,7 +502,9 @@ def _summarize(
         for r in rows:
             r.setdefault("task", None)
             r.setdefault(f"x {args.tasks[0]}", None)
-        columns = [c for c in rows[-1] if c != "runs"]
+        columns = [c for c in rows[-1] if c not in ("runs", "parts_ms")]
+    elif args.parts:
+        columns = [c for c in rows[0] if c != "parts_ms"]
     table = print_table("TruckEnv env-steps/s (random policy, resets included)", rows, columns)
     best = max(rows, key=lambda r: r["steps/s"])
     summary = {
