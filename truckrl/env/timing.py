@@ -13,7 +13,7 @@ The parts, each timed around the env's own call while :func:`timed_parts` is act
 * ``other``: the rest of the wall time of the timed loop (TorchRL's step bookkeeping, the state
   update, the random actions), computed by the caller as total minus the parts.
 
-The first four nest as ``restart ⊃ prepare, draw``; :attr:`StepParts.restart` excludes them, so
+The first four nest as ``restart ⊃ prepare, draw``; ``StepParts.restart`` excludes them, so
 the parts add up. On a CUDA device every timed call synchronizes the device first and last
 (queued kernels are charged to the part that launched them), which slows the step itself: the
 parts are a profile, not a throughput figure.
