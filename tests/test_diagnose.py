@@ -99,6 +99,61 @@ def test_a_straight_drive_is_recorded_as_it_must_end():
     assert all(set(r["touched"]) == {"tractor: dead-end wall"} for r in crash)
 
 
+def full_back(td):
+    """Full reverse acceleration, steering held: the truck backs straight down its lane."""
+    td["action"] = torch.tensor([-1.0, 0.0]).expand(td.batch_size[0], 2).clone()
+    return td
+
+
+def test_the_closest_approach_is_the_nearest_state_after_any_step():
+    """``closest`` against a brute-force pass of the same drive: the rear axle's distance to the
+    goal, and the heading errors, computed here from the poses after every step until the
+    episode ends; ``reached`` against the tolerance of the difficulty (30 m / 2**2). Reversing
+    straight from the road start passes the goal's lane end and goes on, so the nearest state
+    lies tens of steps in, a different one per scene, and some scenes come within 7.5 m."""
+    from truckrl.env import TruckEnv
+    from truckrl.sim.geometry import wrap_angle
+
+    cfg = EnvConfig(task={"name": "uturn", "start": {"enabled": False}}, max_steps=120)
+    d = diagnose(full_back, cfg, difficulty=2.0, episodes=12, seed=5)
+    env = TruckEnv(num_envs=12, config=cfg, seed=5)
+    env.set_difficulty(2.0)
+    td = env.reset()
+    goal = env.get_state()["goal"]
+    best = torch.full((12,), math.inf)
+    step = torch.zeros(12, dtype=torch.long)
+    at = torch.zeros(12, 4)
+    live = torch.ones(12, dtype=torch.bool)
+    for t in range(cfg.max_steps):
+        nxt = env.step(full_back(td))["next"]
+        pose = env.get_state()["pose"]
+        dist = torch.sqrt((goal[:, 0] - pose[:, 0]) ** 2 + (goal[:, 1] - pose[:, 1]) ** 2)
+        nearer = live & (dist < best)
+        best = torch.where(nearer, dist, best)
+        step = torch.where(nearer, t + 1, step)
+        at = torch.where(nearer[:, None], pose, at)
+        live &= ~nxt["done"].squeeze(-1)
+        if not live.any():
+            break
+        td = nxt
+    assert (step > 10).all() and len(set(step.tolist())) > 3  # not the first state
+    assert d["reached"].any() and not d["reached"].all()
+    torch.testing.assert_close(d["closest"], best, atol=1e-4, rtol=0)
+    assert torch.equal(d["closest_step"], step)
+    tractor = wrap_angle(goal[:, 2] - at[:, 2]).abs()
+    trailer = wrap_angle(goal[:, 2] - at[:, 2] - at[:, 3]).abs()
+    torch.testing.assert_close(d["closest_tractor"], tractor, atol=1e-4, rtol=0)
+    torch.testing.assert_close(d["closest_trailer"], trailer, atol=1e-4, rtol=0)
+    assert torch.equal(d["reached"], best <= 30.0 / 4)
+    rows = summarize_diagnosis(d)
+    for r in rows:
+        m = (d["left"] == (r["branch"] == "left")) & (
+            d["outcome"] == OUTCOME_NAMES.index(r["outcome"])
+        )
+        assert r["closest_median_m"] == pytest.approx(float(best[m].median()), abs=1e-4)
+        assert r["reached"] == pytest.approx(float((best[m] <= 30.0 / 4).float().mean()))
+
+
 def _code(argv: list[str]) -> int:
     try:
         return main(argv)

@@ -9,6 +9,10 @@ mean action. Per episode it records, from the env's state at every step:
 * ``depth`` [m]: the deepest the trailer axle got beyond the branch-side curb line, measured
   across the road (negative: it never left the road);
 * ``turned``: the tractor heading came more than 90 deg from the start heading;
+* ``closest`` [m]: the closest the tractor's rear axle came to the goal after any step (the
+  position error success reads), with the step and the tractor's and trailer's heading errors
+  [rad] there, and ``reached``: whether that is within the position tolerance. A time-out that
+  reached the goal's position failed on its headings, then drove on;
 * for a collision, which segments each body touched at the last step before it, the bodies
   lengthened at both ends by that step's reach ``(|v| + max_accel dt) dt + margin`` and widened
   by ``margin`` plus a tenth of the reach (a turning body's corners move a little sideways), so
@@ -57,9 +61,10 @@ def diagnose(
 ) -> dict[str, Tensor]:
     """Run each scene's first episode with ``actor``'s mean action; per-episode ``[E]`` tensors:
     ``outcome`` (long, :data:`OUTCOME_NAMES`), ``left`` (bool), ``pulled``, ``turned`` (bool),
-    ``depth`` [m], ``length`` [steps], and ``tractor_hit``, ``trailer_hit`` ``[E, S]`` bool
-    (segment slots, :data:`~truckrl.tasks.uturn.scene.SEGMENT_NAMES`; all False but for
-    collisions)."""
+    ``depth`` [m], ``length`` [steps], ``closest`` [m], ``closest_step`` (long, 1-based),
+    ``closest_tractor``, ``closest_trailer`` [rad], ``reached`` (bool) (module doc), and
+    ``tractor_hit``, ``trailer_hit`` ``[E, S]`` bool (segment slots,
+    :data:`~truckrl.tasks.uturn.scene.SEGMENT_NAMES`; all False but for collisions)."""
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
     if env_cfg.task.name != "uturn":
@@ -78,6 +83,9 @@ def diagnose(
     turned = torch.zeros(n, dtype=torch.bool)
     depth = torch.full((n,), -math.inf)
     hits = torch.zeros(2, n, slots, dtype=torch.bool)
+    closest = torch.full((n,), math.inf)
+    closest_step = torch.zeros(n, dtype=torch.long)
+    closest_heading = torch.zeros(2, n)
     s = first
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for t in range(env_cfg.max_steps):
@@ -90,6 +98,15 @@ def diagnose(
             turned |= back & live
             nxt = env.step(actor(td))["next"]
             done = nxt["done"].squeeze(-1) & live
+            # the state after the step, as success reads it (the terminal one included)
+            pos = nxt["pos_error"].squeeze(-1)
+            nearer = live & (pos < closest)
+            closest = torch.where(nearer, pos, closest)
+            closest_step = torch.where(nearer, t + 1, closest_step)
+            heading = torch.stack(
+                (nxt["tractor_heading_error"].squeeze(-1), nxt["trailer_heading_error"].squeeze(-1))
+            )
+            closest_heading = torch.where(nearer, heading, closest_heading)
             pulled |= (s["pulled"] > 0.5) & live
             code = _outcome_code(nxt)
             outcome = torch.where(done, code, outcome)
@@ -104,6 +121,7 @@ def diagnose(
                 break
             td = nxt
             s = env.get_state()
+    tol_pos = env.tolerances()[0]
     env.close()
     return {
         "outcome": outcome,
@@ -112,6 +130,11 @@ def diagnose(
         "turned": turned,
         "depth": depth,
         "length": length,
+        "closest": closest,
+        "closest_step": closest_step,
+        "closest_tractor": closest_heading[0],
+        "closest_trailer": closest_heading[1],
+        "reached": closest <= tol_pos,
         "tractor_hit": hits[0],
         "trailer_hit": hits[1],
     }
@@ -148,7 +171,9 @@ def _touched(
 
 def summarize_diagnosis(d: dict[str, Tensor]) -> list[dict[str, Any]]:
     """One row per (branch side, outcome) with episodes: count, shares pulled / turned round,
-    median deepest trailer depth [m], and for collisions the count per (body, segment)."""
+    median deepest trailer depth [m], median closest approach to the goal [m] and trailer
+    heading error there [deg], share that reached the goal's position, and for collisions the
+    count per (body, segment)."""
     rows = []
     for left, side in ((False, "right"), (True, "left")):
         for code, name in enumerate(OUTCOME_NAMES):
@@ -163,6 +188,9 @@ def summarize_diagnosis(d: dict[str, Tensor]) -> list[dict[str, Any]]:
                 "pulled": float(d["pulled"][m].float().mean()),
                 "turned": float(d["turned"][m].float().mean()),
                 "depth_median_m": float(d["depth"][m].median()),
+                "closest_median_m": float(d["closest"][m].median()),
+                "closest_trailer_median_deg": math.degrees(float(d["closest_trailer"][m].median())),
+                "reached": float(d["reached"][m].float().mean()),
             }
             if name == "collision":
                 row["touched"] = {
@@ -178,13 +206,15 @@ def summarize_diagnosis(d: dict[str, Tensor]) -> list[dict[str, Any]]:
 def format_diagnosis(rows: list[dict[str, Any]]) -> str:
     """The rows of :func:`summarize_diagnosis` as a text table (collisions' touches below)."""
     lines = [
-        f"{'branch':7s}{'outcome':12s}{'episodes':>9s}{'pulled':>8s}{'turned':>8s}{'depth m':>9s}",
-        "-" * 53,
+        f"{'branch':7s}{'outcome':12s}{'episodes':>9s}{'pulled':>8s}{'turned':>8s}{'depth m':>9s}"
+        f"{'closest m':>11s}{'trailer deg':>13s}{'reached':>9s}",
+        "-" * 86,
     ]
     for r in rows:
         lines.append(
             f"{r['branch']:7s}{r['outcome']:12s}{r['episodes']:9d}{100 * r['pulled']:7.0f}%"
-            f"{100 * r['turned']:7.0f}%{r['depth_median_m']:9.1f}"
+            f"{100 * r['turned']:7.0f}%{r['depth_median_m']:9.1f}{r['closest_median_m']:11.2f}"
+            f"{r['closest_trailer_median_deg']:13.1f}{100 * r['reached']:8.0f}%"
         )
         for part, k in sorted(r.get("touched", {}).items(), key=lambda kv: -kv[1]):
             lines.append(f"{'':19s}touched {part}: {k}")
