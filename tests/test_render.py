@@ -155,6 +155,21 @@ def test_bench_env_parts_get_their_own_table_with_the_ratio_without_draws(out):
     assert not (out / "benchmarks" / "env-tasks-parts.md").exists()
 
 
+def test_bench_env_parts_of_one_task_are_labelled_by_trucks(render):
+    doc = {
+        "benchmark": "env",
+        "rows": [
+            {"layout": "batched", "workers": 1, "envs/worker": 256, "trucks": 256,
+             "compile": True, "steps/s": 1000.0,
+             "parts_ms": {"draw": 1.0, "prepare": 0.5, "restart": 0.25, "transition": 2.0,
+                          "other": 0.25, "total": 4.0}},
+        ],
+    }  # fmt: skip
+    header, rows = render.env_tables(doc)["-parts"]
+    assert header[0] == "trucks" and len(header) == 7  # no ratio column for one task
+    assert rows == [["256", "1.00", "0.50", "0.25", "2.00", "0.25", "4.00"]]
+
+
 def test_an_unknown_file_is_refused_by_name(render, tmp_path):
     data = tmp_path / "data"
     data.mkdir()

@@ -217,6 +217,21 @@ def test_parts_split_each_runs_step_time_and_give_the_ratio_without_draws(tmp_pa
     assert "parts_ms" not in record["table"]
 
 
+def test_parts_of_a_one_task_row_stay_out_of_its_table(tmp_path, capsys):
+    """parts=true without tasks: the batched row holds its parts (adding up to its total) and
+    prints them; the printed table keeps its usual columns."""
+    from truckrl.bench import env as bench_env
+
+    argv = ["quick=true", "envs=[4]", "steps=3", "warmup=1", "parts=true", f"out={tmp_path}"]
+    bench_env.run(bench_env.parse(argv))
+    assert "N=4: ms per step: draw" in capsys.readouterr().out
+    record = json.loads(next(tmp_path.glob("env-*.json")).read_text())
+    (row,) = record["rows"]
+    ms = row["parts_ms"]
+    assert sum(v for k, v in ms.items() if k != "total") == pytest.approx(ms["total"])
+    assert "parts_ms" not in record["table"] and "steps/s" in record["table"]
+
+
 def test_difficulty_is_where_the_envs_step(tmp_path, capsys):
     """difficulty=3: the envs draw and step episodes of difficulty 3 (the network task's
     traffic is stepped there, and left out of the step at the default 0)."""
