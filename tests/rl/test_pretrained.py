@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
 import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests.golden.golden import CLAIMED_DIFFICULTY, OUTCOME_EPISODES
 from truckrl.rl import checkpoint as ckpt
 from truckrl.rl.session import run_dir_of
 
@@ -52,21 +54,48 @@ def test_outputs_of_a_shipped_policy_stay_out_of_the_package(shipped):
     assert run_dir_of(Path("/x/run/checkpoints/last.pt")) == Path("/x/run")
 
 
-#: Per shipped policy: its model card's success rate on 1,000 held-out scenes of seed 12345 at
-#: the claimed difficulty (tests.golden.golden.CLAIMED_DIFFICULTY; truckrl/tasks/<task>/
-#: pretrained.md), and the fewest successes the test accepts on the first 100 of them.
-#: The floor: were the 100 scenes a fresh sample, the successes would be Binomial(100, p) with p
-#: the claim; each floor is the highest count k with P(X < k) <= 0.5 % (intersection, claimed
-#: 97.2 %: P(X < 92) = 0.20 %, P(X < 93) = 0.72 %, the 90 given by issue 39 is 1e-4; dock
-#: 83.2 %: P(X < 73) = 0.35 %, P(X < 74) = 0.69 %; uturn 97.2 %, as intersection; network
-#: 81.4 %: P(X < 71) = 0.39 %, P(X < 72) = 0.76 %), so a file at its claimed level passes, while
-#: one several points worse fails (an untrained policy scores 0 on all four).
-CLAIMS = {
-    "intersection": (0.972, 92),
-    "dock": (0.832, 73),
-    "uturn": (0.972, 92),
-    "network": (0.814, 71),
-}
+#: The shipped policies' tasks (each folder holds ``pretrained.pt`` and its card
+#: ``pretrained.md``).
+TASKS = tuple(sorted(CLAIMED_DIFFICULTY))
+
+
+def card_claim(task: str) -> tuple[float, float]:
+    """``(success rate, difficulty)`` that ``truckrl/tasks/<task>/pretrained.md`` claims: the
+    first column (seed 12345) of its table's **all** row, and the difficulty its "How well it
+    drives" section names."""
+    import re
+
+    import truckrl
+
+    text = (Path(truckrl.__file__).parent / "tasks" / task / "pretrained.md").read_text()
+    rate = re.search(r"^\| \*\*all\*\* \| \*\*([0-9.]+) %", text, re.M)
+    level = re.search(r"held-out scenes per scene seed, at\s+difficulty ([0-9.]+) \(", text)
+    assert rate and level, f"{task}/pretrained.md: no 'all' row or no claimed difficulty"
+    return float(rate.group(1)) / 100, float(level.group(1))
+
+
+def binomial_floor(p: float, n: int = OUTCOME_EPISODES, alpha: float = 0.005) -> int:
+    """The highest count ``k`` with ``P(X < k) <= alpha`` for ``X ~ Binomial(n, p)``: were the
+    ``n`` scenes a fresh sample, a policy at the claimed rate ``p`` scores below ``k`` with
+    probability at most ``alpha``, while one several points worse falls below it."""
+    below, k = 0.0, 0
+    while k < n and below + math.comb(n, k) * p**k * (1 - p) ** (n - k) <= alpha:
+        below += math.comb(n, k) * p**k * (1 - p) ** (n - k)
+        k += 1
+    return k
+
+
+def test_the_binomial_floor_matches_hand_computed_tails():
+    """P(X < 92) = 0.20 % and P(X < 93) = 0.72 % at p = 0.972; P(X < 73) = 0.35 % and
+    P(X < 74) = 0.69 % at p = 0.832 (the tails summed by hand from the pmf)."""
+    assert binomial_floor(0.972) == 92
+    assert binomial_floor(0.832) == 73
+    assert binomial_floor(1.0) == 100 and binomial_floor(0.0) == 0
+
+
+def test_every_card_claims_the_difficulty_its_outcomes_are_recorded_at():
+    for task in TASKS:
+        assert card_claim(task)[1] == CLAIMED_DIFFICULTY[task], task
 
 
 @pytest.fixture(scope="module")
@@ -77,11 +106,11 @@ def recordings(tmp_path_factory) -> Path:
     from tests.golden.golden import record_pinned
 
     out = tmp_path_factory.mktemp("outcomes")
-    record_pinned(out, "--outcomes", *sorted(CLAIMS))
+    record_pinned(out, "--outcomes", *TASKS)
     return out
 
 
-@pytest.fixture(params=sorted(CLAIMS))
+@pytest.fixture(params=TASKS)
 def played(request, recordings) -> tuple[str, dict]:
     """``(task, fresh recording)`` of the shipped policy of ``task`` (from :func:`recordings`)."""
     from tests.golden.golden import OUTCOME_FILES, load_golden
@@ -92,16 +121,16 @@ def played(request, recordings) -> tuple[str, dict]:
 
 def test_the_shipped_policy_reaches_its_claimed_level(played):
     """``truckrl eval checkpoint=pretrained:<task> difficulty=<claimed> episodes=100``: at least
-    the floor of :data:`CLAIMS` successes (a wrong, broken or worse file fails here)."""
-    from tests.golden.golden import CLAIMED_DIFFICULTY
-
+    :func:`binomial_floor` of the card's claimed rate in successes (a wrong, broken or worse
+    file fails here, and so does a card that claims more than its file does)."""
     task, fresh = played
-    claim, floor = CLAIMS[task]
+    claim, difficulty = card_claim(task)
+    floor = binomial_floor(claim)
     successes = int((fresh["outcome"] & 1).sum())
-    assert fresh["difficulty"] == CLAIMED_DIFFICULTY[task]
+    assert fresh["difficulty"] == difficulty
     assert successes >= floor, (
-        f"shipped {task} policy: {successes} of 100 successes at difficulty "
-        f"{CLAIMED_DIFFICULTY[task]:g}, below the floor {floor} (its model card claims {claim:.1%})"
+        f"shipped {task} policy: {successes} of {OUTCOME_EPISODES} successes at difficulty "
+        f"{difficulty:g}, below the floor {floor} (its model card claims {claim:.1%})"
     )
 
 
@@ -134,7 +163,6 @@ def test_the_shipped_policy_ends_every_episode_as_recorded(played):
 
 
 def test_the_shipped_policies_are_the_tasks_their_cards_name():
-    from tests.golden.golden import CLAIMED_DIFFICULTY
     from truckrl.rl.policy import load_policy
 
     assert sorted(ckpt.pretrained_names()) == sorted(CLAIMED_DIFFICULTY)
