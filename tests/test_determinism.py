@@ -9,8 +9,9 @@ resume, the generator states saved in the checkpoint. What is not: the wall cloc
 when ``log.eval_interval_min`` runs a held-out check (and so which checkpoint becomes best.pt;
 ``log.eval_interval_frames`` counts frames instead, as these runs do) and the ``perf/*``
 scalars (:data:`WALL_CLOCK`); and the float rounding of a reduction, which depends on the
-thread count (``threads``: a config value). At one thread the same config reruns the same
-arithmetic; at two, the default config's training does not (docs/training.md).
+thread count (``threads``: a config value, so the same config reruns the same arithmetic; on a
+CPU at several threads only because training fixes the compiled backward's summation order,
+:func:`truckrl.rl.trainer.fixed_order_gradients`).
 
 Runs are tiny and eager, in subprocesses (each with fresh global state, as users run them).
 """

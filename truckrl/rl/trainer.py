@@ -92,6 +92,7 @@ class Trainer:
         """Build env, models, PPO, curriculum, collector and logger; a bad checkpoint or missing
         demonstrations raise their one-line errors after closing the env workers."""
         tc, state = self.tc, self.state
+        fixed_order_gradients(tc.device)
 
         # Create environment
         c = tc.collector
@@ -371,6 +372,16 @@ class Trainer:
         """The last lines of the session: why it stopped, where its checkpoint is, what next."""
         return stop_lines(reason, self.run_dir, self.counters.iteration, self.counters.frames,
                           self.minutes, self.curriculum.difficulty, self.quality.line())  # fmt: skip
+
+
+def fixed_order_gradients(device: Any) -> None:
+    """On a CPU, torch's deterministic algorithms for this process: the compiled loss's backward
+    then sums the LiDAR encoder's weight gradients (gathered into its ring matrix,
+    :class:`~truckrl.rl.network.LidarEncoder`) in a fixed order instead of with atomic adds from
+    several threads, so the same seed and threads repeat a run at any thread count. Other
+    devices keep torch's default."""
+    if torch.device(device).type == "cpu":
+        torch.use_deterministic_algorithms(True, warn_only=True)
 
 
 def frames_due(interval: int, frames: int, window: int) -> bool:
