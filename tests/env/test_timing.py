@@ -47,10 +47,10 @@ def test_a_slow_draw_is_charged_to_the_draws_not_to_the_restart_around_it():
     env = TruckEnv(num_envs=4, config=CONFIG, seed=5)
     draw, calls = env._pool._draw, []
 
-    def slow(k: int):
+    def slow(k: int, key):
         calls.append(k)
         time.sleep(0.05)
-        return draw(k)
+        return draw(k, key)
 
     env._pool._draw = slow
     with timed_parts(env) as parts:

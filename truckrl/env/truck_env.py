@@ -18,6 +18,7 @@ steps to change the trucks).
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from numbers import Integral
 from typing import Any
 
@@ -104,7 +105,11 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
         # observation: a partial reset then copies plain tensors and never builds a TensorDict
         # or observes (see _restart); a task without a start curriculum prepares them once
         self._plain_reset = type(self.task).on_reset is Task.on_reset
-        self._pool = EpisodePool(self._draw, self.config.episode_pool, self._prepare)
+        self._pool = EpisodePool(
+            self._draw, self.config.episode_pool, self._prepare, self._draw_key
+        )
+        #: what the task's last refill left for the next one (:meth:`Task.sample_pool`)
+        self._carry = None
         if seed is None:
             seed = int(torch.empty((), dtype=torch.int64).random_().item())
         self.set_seed(seed)
@@ -116,6 +121,7 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
         self.rng = torch.Generator(device=self.device)
         self.rng.manual_seed(int(seed))
         self._pool.clear()
+        self._carry = None
 
     def set_difficulty(self, difficulty: float) -> None:
         """Set the curriculum difficulty ``d`` (>= 0) for every truck; used from the next step on.
@@ -172,10 +178,16 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
         return self._state["params"]
 
     # ------------------------------------------------------------------ fresh episodes
-    def _draw(self, k: int) -> Leaves:
-        """``k`` fresh episodes from the task's generator (the pool's refill)."""
-        td = self.task.sample(k, self.rng, self.device)
+    def _draw(self, k: int, draw_key: Hashable) -> Leaves:
+        """Up to ``k`` fresh episodes from the task's generator (the pool's refill,
+        :meth:`Task.sample_pool`), what it carries to the next refill kept here."""
+        td, self._carry = self.task.sample_pool(k, self.rng, self.device, draw_key, self._carry)
         return dict(td.items(include_nested=True, leaves_only=True))
+
+    def _draw_key(self, pool_key: float | None) -> Hashable:
+        """What the pool's draws depend on (:meth:`Task.draw_key` of the difficulty; nothing
+        for a task without a start curriculum)."""
+        return None if pool_key is None else self.task.draw_key(pool_key)
 
     def _pool_key(self) -> float | None:
         """What the pool's prepared episodes depend on: the difficulty (all trucks share it),

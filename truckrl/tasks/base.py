@@ -28,7 +28,7 @@ gets trucks with a reverse speed limit and a control whose speed goes down to it
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import torch
@@ -155,6 +155,22 @@ class Task:
     def sample(self, m: int, rng: torch.Generator, device: torch.device) -> TensorDict:
         """``m`` new episodes at their start (state layout in the module doc)."""
         raise NotImplementedError
+
+    def draw_key(self, difficulty: float) -> Hashable:
+        """What :meth:`sample_pool`'s episodes depend on at ``difficulty`` (the env's float);
+        the default: nothing (``None``), the same draws at every difficulty. The env's episode
+        pool drops its held episodes where it changes."""
+        return None
+
+    def sample_pool(
+        self, m: int, rng: torch.Generator, device: torch.device, key: Hashable, carry: Any
+    ) -> tuple[TensorDict, Any]:
+        """An episode pool's refill: ``(between 1 and m new episodes at their start, what the
+        next refill takes over)``, for the draw key ``key`` (:meth:`draw_key`; the episodes
+        then start only under a difficulty of that key). ``carry`` is what the previous refill
+        handed over (``None`` at first and after a new seed). The default: :meth:`sample` of
+        ``m``, nothing carried."""
+        return self.sample(m, rng, device), None
 
     def sample_params(
         self, m: int, rng: torch.Generator, device: torch.device

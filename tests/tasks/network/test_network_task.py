@@ -5,6 +5,7 @@ errors. The golden rollout is tests/tasks/network/test_network_golden.py."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from types import SimpleNamespace
 
@@ -50,6 +51,27 @@ def extents(p: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarra
         p["kingpin_offset"] + p["trailer_wheelbase"] + p["trailer_rear_overhang"],
     )
     return front, rear, 0.5 * np.maximum(p["tractor_width"], p["trailer_width"])
+
+
+def body_spans(s: dict) -> list[tuple[tuple[float, float, float], ...]]:
+    """Each straight truck's tractor and trailer as ``(behind, ahead, half width)`` [m] along
+    its heading from the tractor rear axle (docs/environment.md's layout; the bounding box of
+    :func:`extents` also covers the corners beside the narrower body)."""
+    p = {k[len("params/") :]: v for k, v in s.items() if k.startswith("params/")}
+    hitch = -p["kingpin_offset"]
+    tractor = zip(
+        -p["rear_overhang"],
+        p["wheelbase"] + p["front_overhang"],
+        p["tractor_width"] / 2,
+        strict=True,
+    )
+    trailer = zip(
+        hitch - p["trailer_wheelbase"] - p["trailer_rear_overhang"],
+        hitch + p["trailer_front_overhang"],
+        p["trailer_width"] / 2,
+        strict=True,
+    )
+    return [(a, b) for a, b in zip(tractor, trailer, strict=True)]
 
 
 def footprint(pose: np.ndarray, front, rear, half) -> np.ndarray:
@@ -158,9 +180,51 @@ def test_start_and_goal_are_feasible_by_a_numpy_oracle(sampled):
     distance to the goal along the route within the candidates' reach of the level's distance
     (or the level's link start option), at least min_goal_gap."""
     task, state = sampled
+    check_starts_by_oracle(task, state)
+
+
+@pytest.mark.parametrize("level", [0, 2, 5])
+def test_a_pool_refill_places_its_levels_start_by_the_same_oracle(level):
+    """A refill for one level (NetworkTask.sample_pool): only that level's start is searched,
+    and it passes the oracle above; vehicles only where the level keeps some."""
+    task = make_task(EnvConfig(task={"name": "network"}))
+    state, _ = task.sample_pool(
+        48, torch.Generator().manual_seed(3), torch.device("cpu"), level, None
+    )
+    check_starts_by_oracle(task, state, levels=[level])
+    share = task.cfg.task.curriculum.traffic[level]
+    assert bool(state["tr_active"].any()) == (share > 0.0)
+
+
+def test_a_pool_refill_keeps_the_passing_episodes_and_hands_the_other_trucks_on():
+    """The refill's trucks are those carried over first, then new ones from the generator; the
+    episodes that fail the rule are left out and their trucks carried to the next refill, so no
+    truck is dropped (the trucks' distribution stays that of sample_params)."""
+    task = make_task(EnvConfig(task={"name": "network"}))
+    dev, g = torch.device("cpu"), torch.Generator().manual_seed(11)
+    trucks = task.sample_params(128, torch.Generator().manual_seed(11), dev)
+    first, carry = task.sample_pool(128, g, dev, 0, None)
+    assert bool(first["route", "feasible"].all()) and carry is not None
+    kept = {k: first["params", k] for k in trucks}
+    # the kept and the carried trucks are the 64 drawn, in order, each once
+    n_kept, n_carry = first.shape[0], carry["wheelbase"].shape[0]
+    assert n_kept + n_carry == 128 and n_kept >= 64
+    for k, v in trucks.items():
+        both = torch.cat((kept[k], carry[k]))
+        assert torch.equal(both.sort().values, v.sort().values), k
+    second, carry2 = task.sample_pool(128, g, dev, 0, carry)
+    # the carried trucks are the first rows of the next refill: kept there or carried again
+    later = torch.cat((second["params", "wheelbase"], carry2["wheelbase"] if carry2 else torch.zeros(0)))
+    assert all(bool((later == t).any()) for t in carry["wheelbase"])
+
+
+def check_starts_by_oracle(task, state, levels=None) -> None:
+    """The oracle of test_start_and_goal_are_feasible_by_a_numpy_oracle, on the curriculum
+    levels ``levels`` (every level: ``None``)."""
     assert bool(state["route", "feasible"].all())
     s = numpy_of(state)
     front, rear, half = truck_of(s)
+    bodies = body_spans(s)
     veh, on_road = vehicle_corners(state)
     cur, scene = task.cfg.task.curriculum, task.cfg.task.scene
     reach = scene.start_tries * scene.start_step
@@ -177,6 +241,8 @@ def test_start_and_goal_are_feasible_by_a_numpy_oracle(sampled):
         )
         goal_s = route_arc(s["goal"][i][:2], s["route_points"][i])
         for v, (j, distance) in enumerate(zip(cur.junctions, cur.distance, strict=True)):
+            if levels is not None and v not in levels:
+                continue
             start, option = s["level_starts"][i, v], s["start_options"][i, J - j]
             gap = goal_s - route_arc(start[:2], s["route_points"][i])
             on = [polyline_distance(start[:2], lane)[0] < 1e-3 for lane in lanes]
@@ -201,26 +267,29 @@ def test_start_and_goal_are_feasible_by_a_numpy_oracle(sampled):
             near_target += abs(gap - expected) <= 1.0
             tried += 1
         poses = (s["start_options"][i, 0], s["start_options"][i, 1], s["goal"][i])
-        for pose in (*poses, *s["level_starts"][i]):
+        checked = range(len(cur.junctions)) if levels is None else levels
+        for pose in (*poses, *s["level_starts"][i][list(checked)]):
             best = min(polyline_distance(pose[:2], lane) for lane in lanes)
             assert best[0] < 1e-3, (i, pose, best)
             assert abs(math.remainder(best[1] - pose[2], 2 * math.pi)) < 1e-3, (i, pose, best)
             box = footprint(pose, front[i], rear[i], half[i])
             assert not seg_hits_box(curbs, box).any(), (i, pose)
-            for c, r in zip(
-                zc, zr, strict=True
-            ):  # box to disc: the disc's centre clamped into the box
+            # each body's box to each disc: the disc's centre clamped into the box
+            for (lo, hi, w), (c, r) in itertools.product(bodies[i], zip(zc, zr, strict=True)):
                 u = np.array([math.cos(pose[2]), math.sin(pose[2])])
                 rel = c - pose[:2]
-                along = np.clip(rel @ u, -rear[i], front[i])
-                across = np.clip(rel @ np.array([-u[1], u[0]]), -half[i], half[i])
+                along = np.clip(rel @ u, lo, hi)
+                across = np.clip(rel @ np.array([-u[1], u[0]]), -w, w)
                 nearest = pose[:2] + along * u + across * np.array([-u[1], u[0]])
                 assert np.linalg.norm(c - nearest) >= r, (i, pose, c, r)
             both = np.concatenate((box[None], veh[i][on_road[i]]))[None]
             hit = overlapping_pairs(both, np.ones(both.shape[:2], dtype=bool))
             assert not hit[0, 0].any(), (i, pose)
-    assert tried > n and near_target > 0.5 * tried  # most levels' starts at their distance
-    assert 0 < passed < tried  # starts past a junction and starts before one, both checked
+    if levels is None:
+        assert tried > n and near_target > 0.5 * tried  # most levels' starts at their distance
+        assert 0 < passed < tried  # starts past a junction and starts before one, both checked
+    elif cur.distance[levels[0]] > 0.0:
+        assert tried > 0.5 * n and near_target > 0.5 * tried
 
 
 def test_the_reset_pool_refills_by_the_tasks_own_size_unless_one_is_set():
@@ -232,8 +301,27 @@ def test_the_reset_pool_refills_by_the_tasks_own_size_unless_one_is_set():
     assert EnvConfig(task={"name": "intersection"}).episode_pool == Task.episode_pool
     assert EnvConfig(task={"name": "network"}, episode_pool=8).episode_pool == 8
     env = TruckEnv(num_envs=2, config={"task": {"name": "network"}, "max_steps": 60}, seed=0)
+    draw, asked = env._pool._draw, []
+    env._pool._draw = lambda k, key: asked.append(k) or draw(k, key)
     env.reset()
-    assert len(env._pool) == NetworkTask.episode_pool - 2
+    assert asked == [NetworkTask.episode_pool]
+
+
+def test_a_level_change_drops_the_episodes_drawn_for_the_old_level():
+    """Refills are drawn for one curriculum level (level 0: no vehicle placed): after
+    set_difficulty moves to level 5 (every vehicle), the restarted trucks start at that level,
+    with traffic, and not on the held episodes drawn for level 0."""
+    config = {"task": {"name": "network"}, "max_steps": 1, "episode_pool": 16}
+    env = TruckEnv(num_envs=8, config=config, seed=6)
+    env.set_difficulty(0.0)
+    td = env.reset()
+    assert not env.get_state()["tr_active"].any()
+    env.set_difficulty(3.0)
+    env.step_and_maybe_reset(td.set("action", torch.zeros(8, 2)))  # every truck restarts
+    st = env.get_state()
+    assert (st["step_count"] == 0).all() and (st["route", "level"] == 5).all()
+    assert st["tr_active"].any(-1).float().mean() > 0.5
+    env.close()
 
 
 def test_a_reset_state_holds_storage_of_its_own_not_the_pools():

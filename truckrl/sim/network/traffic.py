@@ -280,7 +280,7 @@ def lane_tables(net: Network) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
     # [..., 2] table read through strided views at a fraction of the cost
     gap_x = end[:, :, 0, 0].unsqueeze(2) - lanes[:, :, 0, 0].unsqueeze(1)
     gap_y = end[:, :, 0, 1].unsqueeze(2) - lanes[:, :, 0, 1].unsqueeze(1)
-    near = torch.hypot(gap_x, gap_y) < 1e-2
+    near = gap_x * gap_x + gap_y * gap_y < 1e-4  # within 1 cm (squared: no root per pair)
     near = near & usable.unsqueeze(1) & usable.unsqueeze(2)
     near = near & ~torch.eye(lanes.shape[1], dtype=torch.bool, device=lanes.device)
     successor = torch.where(near.any(-1), near.to(torch.uint8).argmax(-1), -1)
@@ -373,12 +373,14 @@ def spawn_traffic(
     # contiguous coordinates: the pair tables below broadcast far faster than strided views
     x, y = (xy[..., i].contiguous().unsqueeze(2) for i in (0, 1))  # [n, P J, 1]
     cx, cy = (centre[..., i].contiguous().unsqueeze(1) for i in (0, 1))  # [n, 1, K]
-    gap = torch.hypot(x - cx, y - cy) - radius.unsqueeze(1)
-    ok = ok & ~(zmask.unsqueeze(1) & (gap < 0.5 * pitch)).any(-1)
+    # a slot centre within half a slot of a disc (squared distances: no root per pair)
+    gx, gy = x - cx, y - cy
+    inside = gx * gx + gy * gy < (radius.unsqueeze(1) + 0.5 * pitch).square()
+    ok = ok & ~(zmask.unsqueeze(1) & inside).any(-1)
     if reserved is not None and reserved.shape[1] > 0:
         rx, ry, rr = (reserved[..., i].contiguous().unsqueeze(1) for i in (0, 1, 2))
-        d = torch.hypot(x - rx, y - ry) - rr
-        ok = ok & ~(d < 0.5 * pitch).any(-1)
+        gx, gy = x - rx, y - ry
+        ok = ok & ~(gx * gx + gy * gy < (rr + 0.5 * pitch).square()).any(-1)
     total = (lane_len * usable).sum(1)
     density = cfg.density[0] + (cfg.density[1] - cfg.density[0]) * rand(n)
     want = (density * total / 100.0).round().long().clamp_max(M)

@@ -95,7 +95,13 @@ from truckrl.sim.network.config import (
     T_JUNCTION,
     NetworkConfig,
 )
-from truckrl.sim.network.traffic import Traffic, TrafficConfig, junction_zones, spawn_traffic
+from truckrl.sim.network.traffic import (
+    Traffic,
+    TrafficConfig,
+    junction_zones,
+    place_vehicles,
+    spawn_traffic,
+)
 from truckrl.sim.roads import first_valid, scene_device, uniform
 from truckrl.sim.vehicle import truck_boxes, truck_extents
 
@@ -517,7 +523,9 @@ def route_windows(
         ex, ey = mid[rows, :, :1] - x0, mid[rows, :, 1:] - y0
         dx, dy = x1 - x0, y1 - y0
         t = ((ex * dx + ey * dy) / (dx * dx + dy * dy).clamp_min(1e-12)).clamp(0, 1)
-        near = torch.hypot(ex - t * dx, ey - t * dy) <= reach + half[rows].unsqueeze(-1)
+        # squared distances: a square root per pair costs more than the rest of the test
+        fx, fy = ex - t * dx, ey - t * dy
+        near = fx * fx + fy * fy <= (reach + half[rows].unsqueeze(-1)).square()
         near &= mask[rows].gather(1, slots).unsqueeze(1)  # [b, chunks, V]
         ranks = near.cumsum(-1)
         count[rows] = ranks[..., -1]
@@ -671,6 +679,9 @@ def generate_episodes(
     generator: torch.Generator | None = None,
     device=None,
     reach: float = 60.0,
+    level: int | None = None,
+    vehicles: bool = True,
+    settle: int | None = None,
 ) -> Chain:
     """``n`` episodes (module doc) for the trucks ``params {key: [n]}``, before the curriculum.
 
@@ -678,16 +689,30 @@ def generate_episodes(
     (:attr:`CurriculumConfig.starts`); the chain has ``J = max`` junctions, the start options
     that the rule checks are those on the links ``L_{J - j}`` for each level's ``j``, and each
     level gets its start (:func:`level_start`; traffic avoids them all). ``reach``: the LiDAR
-    range plus ``window_slack`` [m] (the curb windows')."""
+    range plus ``window_slack`` [m] (the curb windows').
+
+    For episodes that start at one level only (an episode pool's refill):
+
+    * ``level``: the one level whose start is searched; every other level gets its link's start
+      option (so its start is not that level's). ``None``: every level's.
+    * ``vehicles=False``: no vehicle is placed (every slot empty, the lane tables as drawn), for
+      a level that keeps none.
+    * ``settle``: the rounds stop once this many rows pass the rule (the others keep a failing
+      chain, marked); ``None``: every row.
+
+    The chains, routes and the searched starts do not depend on these (a row's chain is the
+    same where the rounds reach it); the random numbers of the vehicles do.
+    """
     dev, params = scene_device(params, generator, device)
     n = next(iter(params.values())).shape[0]
+    settle = n if settle is None else min(settle, n)
 
     front, rear, _ = truck_extents(params)
     todo = torch.ones(n, dtype=torch.bool, device=dev)
     chain: Chain | None = None
     for _ in range(cfg.rounds):
         rows = todo.nonzero().squeeze(-1)  # a scene generator's host read, never a step's
-        if rows.numel() == 0:
+        if rows.numel() == 0 or n - rows.numel() >= settle:
             break
         # each open episode draws `copies` chains (copy j of row i at j m + i), more when few
         # are open: a round's fixed cost is that of a few dozen chains, so the last few open
@@ -697,7 +722,7 @@ def generate_episodes(
         sub = {k: v[many] for k, v in params.items()}
         fresh = _one_round(
             cfg, network, traffic, route, levels, sub, front[many], rear[many], generator, dev,
-            reach,
+            reach, level, vehicles,
         )  # fmt: skip
         ok, pick = first_valid(fresh.feasible.view(copies, rows.numel()))
         if copies > 1:  # one copy: pick is every row in order, and the chains are kept as drawn
@@ -732,8 +757,9 @@ def _assign(chain: Chain, rows: Tensor, fresh: Chain) -> None:
 
 
 def _one_round(
-    cfg, network, traffic, route, levels, params, front, rear, generator, dev, reach
-) -> Chain:
+    cfg, network, traffic, route, levels, params, front, rear, generator, dev, reach, level,
+    vehicles,
+) -> Chain:  # fmt: skip
     """One draw of :func:`generate_episodes` for ``n`` trucks, feasibility marked."""
     n = front.shape[0]
     J = max(j for j, _ in levels)
@@ -785,8 +811,10 @@ def _one_round(
     kept = feasible.nonzero().squeeze(-1)  # a scene generator's host read, never a step's
     keys = list(dict.fromkeys(levels))  # each distinct (junctions, distance) once, in order
     link_s = torch.stack([s_start[:, J - j] for j, _ in keys], 1)
+    searched = keys if level is None else [levels[level]]
+    distances = tuple(d if (j, d) in searched else 0.0 for j, d in keys)
     found_s, found_pose = level_start(
-        cfg, dense, cum, link_s, s_goal, tuple(d for _, d in keys), params, curbs, zones, kept
+        cfg, dense, cum, link_s, s_goal, distances, params, curbs, zones, kept
     )
     found = {key: (found_s[:, v], found_pose[:, v]) for v, key in enumerate(keys)}
     level_s = torch.stack([found[key][0] for key in levels], 1)  # [n, V]
@@ -809,8 +837,16 @@ def _one_round(
     centre = sel[..., :2] + mid.view(n, 1, 1) * _unit(sel[..., 2])
     radius = (0.5 * (front + rear) + cfg.traffic_clearance).view(n, 1).expand(n, sel.shape[1])
     reserved = torch.cat((centre, radius.unsqueeze(-1)), -1)
-    tr = spawn_traffic(net, traffic, generator, reserved)
-    keep = rand(n, traffic.max_vehicles)
+    if vehicles:
+        tr = spawn_traffic(net, traffic, generator, reserved)
+        keep = rand(n, traffic.max_vehicles)
+    else:  # every slot empty and never kept; the lane tables as drawn (a state may get a
+        # vehicle by hand, set_state)
+        M = traffic.max_vehicles
+        zero, one = torch.zeros(n, M, device=dev), torch.ones(n, M, device=dev)
+        lane = torch.zeros(n, M, dtype=torch.long, device=dev)
+        tr = place_vehicles(net, traffic, lane, zero, one, one, one, active=zero.bool())
+        keep = one
     return Chain(
         network=net,
         traffic=tr,

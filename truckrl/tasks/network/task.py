@@ -195,14 +195,67 @@ class NetworkTask(PoseGoal, Task):
     def sample(self, m: int, rng: torch.Generator, device: torch.device) -> TensorDict:
         """``m`` episodes on the whole chain (the start on ``L_0``, every spawned vehicle);
         :meth:`on_reset` applies the curriculum level."""
+        return self._episodes(self.sample_params(m, rng, device), rng, device)
+
+    def level(self, difficulty: float) -> int:
+        """The curriculum level of ``difficulty`` as :meth:`on_reset` finds it (in float32)."""
+        d = np.float32(difficulty)
+        return sum(bool(d >= np.float32(t)) for t in self.cfg.task.curriculum.difficulty) - 1
+
+    def draw_key(self, difficulty: float) -> int:
+        """The curriculum level: a pool's refill searches that level's start alone and places
+        vehicles only where it keeps some (:meth:`sample_pool`)."""
+        return self.level(difficulty)
+
+    def sample_pool(
+        self,
+        m: int,
+        rng: torch.Generator,
+        device: torch.device,
+        key: int,
+        carry: dict[str, Tensor] | None,
+    ) -> tuple[TensorDict, dict[str, Tensor] | None]:
+        """A refill of episodes that start at the curriculum level ``key``: ``m`` trucks (those
+        ``carry`` hands over first, then new ones) each get one chain, and the episodes that
+        pass the feasibility rule are kept; the trucks of the others go to the next refill,
+        which draws them a new chain. Each truck so still gets the first chain of its own that
+        passes, as in :meth:`sample`, whose further redraw rounds cost about as much as the
+        first for a tenth of the rows; only where fewer than half pass do the rounds go on.
+
+        Only level ``key``'s start is searched, and no vehicle is placed where that level keeps
+        none: the episodes start as :meth:`sample`'s would at that level and not at others."""
+        fresh = self.sample_params(
+            m - (0 if carry is None else len(next(iter(carry.values())))), rng, device
+        )
+        params = fresh if carry is None else {k: torch.cat((carry[k], v)) for k, v in fresh.items()}
+        share = self.cfg.task.curriculum.traffic[key]
+        vehicles = share > 0.0 and self.cfg.task.traffic.max_vehicles > 0
+        state = self._episodes(params, rng, device, key, vehicles, settle=m // 2)
+        ok = state[INFO_STATE_KEY, "feasible"] > 0.5
+        if int(ok.sum()) < m // 2:  # the rounds ran out: every row, the failing ones marked
+            return state, None
+        left = (~ok).nonzero().squeeze(-1)
+        carry = {k: v[left] for k, v in params.items()} if left.numel() else None
+        return state[ok], carry
+
+    def _episodes(
+        self,
+        params: dict[str, Tensor],
+        rng: torch.Generator,
+        device: torch.device,
+        level: int | None = None,
+        vehicles: bool = True,
+        settle: int | None = None,
+    ) -> TensorDict:
+        """Episodes for the trucks ``params`` (:func:`generate_episodes` with the arguments)."""
         from tensordict import TensorDict
 
         task = self.cfg.task
-        params = self.sample_params(m, rng, device)
+        m = next(iter(params.values())).shape[0]
         reach = self.cfg.lidar.max_range + task.scene.window_slack
         ch = generate_episodes(
             task.scene, task.network, task.traffic, task.route, self.levels, params, rng, device,
-            reach,
+            reach, level, vehicles, settle,
         )  # fmt: skip
         net, tr = ch.network, ch.traffic
         scene = {
@@ -268,10 +321,8 @@ class NetworkTask(PoseGoal, Task):
         """The traffic's keys where the curriculum level of ``difficulty`` keeps no vehicle
         (:meth:`on_reset` then deactivates every one, and a step would leave them as they
         are); else none. The level as :meth:`on_reset` finds it, in float32."""
-        cur = self.cfg.task.curriculum
-        d = np.float32(difficulty)
-        level = sum(bool(d >= np.float32(t)) for t in cur.difficulty) - 1
-        none = cur.traffic[level] == 0.0 or self.cfg.task.traffic.max_vehicles == 0
+        share = self.cfg.task.curriculum.traffic[self.level(difficulty)]
+        none = share == 0.0 or self.cfg.task.traffic.max_vehicles == 0
         return TRAFFIC_KEYS if none else ()
 
     def on_reset(self, state: TensorDict, difficulty: Tensor) -> TensorDict:
