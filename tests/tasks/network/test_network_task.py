@@ -214,7 +214,9 @@ def test_a_pool_refill_keeps_the_passing_episodes_and_hands_the_other_trucks_on(
         assert torch.equal(both.sort().values, v.sort().values), k
     second, carry2 = task.sample_pool(128, g, dev, 0, carry)
     # the carried trucks are the first rows of the next refill: kept there or carried again
-    later = torch.cat((second["params", "wheelbase"], carry2["wheelbase"] if carry2 else torch.zeros(0)))
+    later = torch.cat(
+        (second["params", "wheelbase"], carry2["wheelbase"] if carry2 else torch.zeros(0))
+    )
     assert all(bool((later == t).any()) for t in carry["wheelbase"])
 
 
