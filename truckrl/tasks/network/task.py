@@ -222,8 +222,10 @@ class NetworkTask(PoseGoal, Task):
         passes, as in :meth:`sample`, whose further redraw rounds cost about as much as the
         first for a tenth of the rows; only where fewer than half pass do the rounds go on.
 
-        Only level ``key``'s start is searched, and no vehicle is placed where that level keeps
-        none: the episodes start as :meth:`sample`'s would at that level and not at others."""
+        Only level ``key``'s start is searched (the other levels get their link's start
+        option, which is not their start), and no vehicle is placed where that level keeps
+        none; vehicles keep clear of this level's start, the start options and the goal, not
+        of the other levels' starts. So the episodes start only at that level."""
         fresh = self.sample_params(
             m - (0 if carry is None else len(next(iter(carry.values())))), rng, device
         )
