@@ -48,11 +48,10 @@ class EpisodePool:
     under another draw key (or :meth:`clear`, on a new seed) drops the rest; so the sequence of
     episodes is fixed by the generator behind ``draw`` and the draw keys of the takes, whatever
     their sizes up to ``size`` (a refill asks for ``size``, or for the whole take where that is
-    more). Where ``prepare`` is given, the pool also
-    holds ``prepare(episodes, key)`` for the ``key`` of the last :meth:`take`, row for row: a
-    row's preparation must not depend on the other rows of its batch (nor draw random
-    numbers), so it is the one a restart of that truck alone would compute. A take with another
-    ``key`` prepares every held episode again.
+    more). Where ``prepare`` is given, the pool also holds ``prepare(episodes, key)`` for the
+    ``key`` of the last :meth:`take`, row for row: a row's preparation must not depend on the
+    other rows of its batch (nor draw random numbers), so it is the one a restart of that truck
+    alone would compute. A take with another ``key`` prepares every held episode again.
 
     Args:
         draw: :data:`Draw`.
@@ -96,9 +95,8 @@ class EpisodePool:
         for ``key`` (as drawn, and no observation, without ``prepare``).
 
         Where fewer than ``m`` are held, the held ones go first and refills (each asked for
-        ``max(m, size)``) the rest; only
-        those ``m`` rows are joined, not a refill's whole batch (a network episode holds
-        tens of kilobytes of scene)."""
+        ``max(m, size)``) the rest; only those ``m`` rows are joined, not a refill's whole batch
+        (a network episode holds tens of kilobytes of scene)."""
         draw_key = None if self._draw_key is None else self._draw_key(key)
         ask = max(m, self._size)
         if draw_key != self._held_key:

@@ -218,6 +218,11 @@ def test_a_pool_refill_keeps_the_passing_episodes_and_hands_the_other_trucks_on(
         (second["params", "wheelbase"], carry2["wheelbase"] if carry2 else torch.zeros(0))
     )
     assert all(bool((later == t).any()) for t in carry["wheelbase"])
+    # a refill asked for fewer trucks than are carried into it draws for every carried one
+    assert n_carry > 1
+    small, left = task.sample_pool(1, g, dev, 0, carry)
+    n_left = 0 if left is None else left["wheelbase"].shape[0]
+    assert small.shape[0] + n_left == n_carry and small.shape[0] >= 1
 
 
 def check_starts_by_oracle(task, state, levels=None) -> None:

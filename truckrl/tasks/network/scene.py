@@ -694,7 +694,8 @@ def generate_episodes(
     For episodes that start at one level only (an episode pool's refill):
 
     * ``level``: the one level whose start is searched; every other level gets its link's start
-      option (so its start is not that level's). ``None``: every level's.
+      option (so its start is not that level's, and traffic avoids only the starts as placed).
+      ``None``: every level's.
     * ``vehicles=False``: no vehicle is placed (every slot empty, the lane tables as drawn), for
       a level that keeps none.
     * ``settle``: the rounds stop once this many rows pass the rule (the others keep a failing
@@ -705,7 +706,7 @@ def generate_episodes(
     """
     dev, params = scene_device(params, generator, device)
     n = next(iter(params.values())).shape[0]
-    settle = n if settle is None else min(settle, n)
+    settle = n if settle is None else max(1, min(settle, n))
 
     front, rear, _ = truck_extents(params)
     todo = torch.ones(n, dtype=torch.bool, device=dev)

@@ -216,7 +216,8 @@ class NetworkTask(PoseGoal, Task):
         carry: dict[str, Tensor] | None,
     ) -> tuple[TensorDict, dict[str, Tensor] | None]:
         """A refill of episodes that start at the curriculum level ``key``: ``m`` trucks (those
-        ``carry`` hands over first, then new ones) each get one chain, and the episodes that
+        ``carry`` hands over first, then new ones; every carried one where they are more) each
+        get one chain, and the episodes that
         pass the feasibility rule are kept; the trucks of the others go to the next refill,
         which draws them a new chain. Each truck so still gets the first chain of its own that
         passes, as in :meth:`sample`, whose further redraw rounds cost about as much as the
@@ -226,15 +227,15 @@ class NetworkTask(PoseGoal, Task):
         option, which is not their start), and no vehicle is placed where that level keeps
         none; vehicles keep clear of this level's start, the start options and the goal, not
         of the other levels' starts. So the episodes start only at that level."""
-        fresh = self.sample_params(
-            m - (0 if carry is None else len(next(iter(carry.values())))), rng, device
-        )
+        carried = 0 if carry is None else next(iter(carry.values())).shape[0]
+        fresh = self.sample_params(max(0, m - carried), rng, device)
         params = fresh if carry is None else {k: torch.cat((carry[k], v)) for k, v in fresh.items()}
         share = self.cfg.task.curriculum.traffic[key]
         vehicles = share > 0.0 and self.cfg.task.traffic.max_vehicles > 0
-        state = self._episodes(params, rng, device, key, vehicles, settle=m // 2)
+        settle = max(1, max(m, carried) // 2)
+        state = self._episodes(params, rng, device, key, vehicles, settle=settle)
         ok = state[INFO_STATE_KEY, "feasible"] > 0.5
-        if int(ok.sum()) < m // 2:  # the rounds ran out: every row, the failing ones marked
+        if int(ok.sum()) < settle:  # the rounds ran out: every row, the failing ones marked
             return state, None
         left = (~ok).nonzero().squeeze(-1)
         carry = {k: v[left] for k, v in params.items()} if left.numel() else None
