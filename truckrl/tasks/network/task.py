@@ -202,6 +202,12 @@ class NetworkTask(PoseGoal, Task):
         d = np.float32(difficulty)
         return sum(bool(d >= np.float32(t)) for t in self.cfg.task.curriculum.difficulty) - 1
 
+    def keeps_vehicles(self, level: int) -> bool:
+        """Whether curriculum level ``level`` keeps any spawned vehicle."""
+        return (
+            self.cfg.task.curriculum.traffic[level] > 0.0 and self.cfg.task.traffic.max_vehicles > 0
+        )
+
     def draw_key(self, difficulty: float) -> int:
         """The curriculum level: a pool's refill searches that level's start alone and places
         vehicles only where it keeps some (:meth:`sample_pool`)."""
@@ -217,9 +223,8 @@ class NetworkTask(PoseGoal, Task):
     ) -> tuple[TensorDict, dict[str, Tensor] | None]:
         """A refill of episodes that start at the curriculum level ``key``: ``m`` trucks (those
         ``carry`` hands over first, then new ones; every carried one where they are more) each
-        get one chain, and the episodes that
-        pass the feasibility rule are kept; the trucks of the others go to the next refill,
-        which draws them a new chain. Each truck so still gets the first chain of its own that
+        get one chain, and the episodes that pass the feasibility rule are kept; the trucks of
+        the others go to the next refill, which draws them a new chain. Each truck so still gets the first chain of its own that
         passes, as in :meth:`sample`, whose further redraw rounds cost about as much as the
         first for a tenth of the rows; only where fewer than half pass do the rounds go on.
 
@@ -230,8 +235,7 @@ class NetworkTask(PoseGoal, Task):
         carried = 0 if carry is None else next(iter(carry.values())).shape[0]
         fresh = self.sample_params(max(0, m - carried), rng, device)
         params = fresh if carry is None else {k: torch.cat((carry[k], v)) for k, v in fresh.items()}
-        share = self.cfg.task.curriculum.traffic[key]
-        vehicles = share > 0.0 and self.cfg.task.traffic.max_vehicles > 0
+        vehicles = self.keeps_vehicles(key)
         settle = max(1, max(m, carried) // 2)
         state = self._episodes(params, rng, device, key, vehicles, settle=settle)
         ok = state[INFO_STATE_KEY, "feasible"] > 0.5
@@ -324,9 +328,7 @@ class NetworkTask(PoseGoal, Task):
         """The traffic's keys where the curriculum level of ``difficulty`` keeps no vehicle
         (:meth:`on_reset` then deactivates every one, and a step would leave them as they
         are); else none. The level as :meth:`on_reset` finds it, in float32."""
-        share = self.cfg.task.curriculum.traffic[self.level(difficulty)]
-        none = share == 0.0 or self.cfg.task.traffic.max_vehicles == 0
-        return TRAFFIC_KEYS if none else ()
+        return () if self.keeps_vehicles(self.level(difficulty)) else TRAFFIC_KEYS
 
     def on_reset(self, state: TensorDict, difficulty: Tensor) -> TensorDict:
         """The curriculum level of each episode's difficulty (module doc); a state without the
