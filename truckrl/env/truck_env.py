@@ -6,8 +6,8 @@ thin adapter: what happens in a step is :meth:`truckrl.tasks.base.Task.transitio
 the specs (keys, shapes and the observation table: :mod:`truckrl.env.spec`), partial resets,
 seeding and the curriculum difficulty. Fresh episodes come from an
 :class:`~truckrl.env.pool.EpisodePool`, the step reads the scene through a
-:class:`~truckrl.env.compaction.CompactScene`, and ``step_and_maybe_reset`` restarts trucks in
-place (:mod:`truckrl.env.autoreset`). Stack several with
+:class:`~truckrl.env.compaction.CompactScene` (where :attr:`Task.compact_scene`), and
+``step_and_maybe_reset`` restarts trucks in place (:mod:`truckrl.env.autoreset`). Stack several with
 ``ParallelEnv(W, lambda: TruckEnv(num_envs=n))`` for a ``[W, n]`` batch.
 
 State: :meth:`TruckEnv.get_state` returns a copy of the full state (layout in
@@ -65,7 +65,9 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
         self.task = make_task(self.config).to(self.device)
         self._state: TensorDict | None = None
         self._restore: TensorDictBase | None = None  # state for the next reset (set_state)
-        self._scene = CompactScene(grow_only=self.config.compile)
+        self._scene = (
+            CompactScene(grow_only=self.config.compile) if self.task.compact_scene else None
+        )
         self._difficulty = torch.full(
             (num_envs,), self.config.tolerance.difficulty, device=self.device
         )
@@ -235,9 +237,10 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
 
     def _flat_state(self) -> dict[str, Any]:
         """The whole state as plain tensors, ``params`` as a dict, and ``segments`` and ``mask``
-        the compacted scene (:class:`~truckrl.env.compaction.CompactScene`)."""
+        the compacted scene (:class:`~truckrl.env.compaction.CompactScene`; the state's own where
+        the task reads no compacted scene)."""
         flat = self._flat_rows(self._state)
-        if self._scene.view is not None:
+        if self._scene is not None and self._scene.view is not None:
             flat["segments"], flat["mask"] = self._scene.view
         return flat
 
@@ -253,7 +256,8 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
         fresh, obs = self._pool.take(idx.numel(), self._pool_key())
         for key, value in fresh.items():
             self._state.get(key).index_put_((idx,), value)
-        self._scene.update(self._state["segments"], self._state["mask"], idx)
+        if self._scene is not None:
+            self._scene.update(self._state["segments"], self._state["mask"], idx)
         return {**obs, "difficulty": difficulty[:, None]}
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
@@ -280,7 +284,8 @@ class TruckEnv(InPlaceAutoReset, EnvBase):
                 # fresh storage, not slices of the pool: the compiled step guards on the storage
                 # offsets of the state it reads
                 self._state = fresh.clone()
-            self._scene.update(self._state["segments"], self._state["mask"])
+            if self._scene is not None:
+                self._scene.update(self._state["segments"], self._state["mask"])
             cols = dict(self._observe_fn(self._flat_state(), self._difficulty))
         else:
             idx = reset.reshape(n).nonzero().squeeze(-1)  # one sync per reset call

@@ -101,6 +101,10 @@ class Task:
         category_dims: how evaluation splits its episodes by scene (:class:`CategoryDim` over
             the metadata its scenes record in ``state["route"]``); a task whose split needs more
             than independent dimensions overrides :meth:`category_bins` instead.
+        compact_scene: whether the env hands :meth:`transition` the scene compacted (valid
+            segments first, padding cut: :class:`~truckrl.env.compaction.CompactScene`); False
+            for a task whose step reads its own scene (:meth:`sensed`), which the env then
+            hands the state's ``segments`` and ``mask`` as they are, slot for slot.
     """
 
     name: ClassVar[str]
@@ -110,6 +114,7 @@ class Task:
     reverse: ClassVar[bool] = False
     episode_pool: ClassVar[int] = 256
     category_dims: ClassVar[tuple[CategoryDim, ...]] = ()
+    compact_scene: ClassVar[bool] = True
 
     @classmethod
     def category_bins(cls, info: Mapping[str, Tensor]) -> dict[str, dict[str, Tensor]] | None:
@@ -356,7 +361,8 @@ class Task:
 
         ``s["segments"]`` / ``s["mask"]`` are read as a set (LiDAR minimum, collision any):
         :class:`~truckrl.env.TruckEnv` passes them valid-first with trailing padding cut
-        (``[N, W <= E, 4]``), which gives the same outputs bit for bit.
+        (``[N, W <= E, 4]``; slot for slot where :attr:`compact_scene` is False), which gives
+        the same outputs bit for bit.
 
         Args:
             action: ``[N, 2]`` raw actions (may hold NaN/inf).

@@ -594,7 +594,7 @@ def test_curriculum_starts_near_the_goal_then_routes_through_more_junctions():
     assert not (st["mask"] & (st["segment_block"] < first)).any()
     assert (st["mask"] & (st["segment_block"] == first)).any(-1).all()
     # nor in any stretch's curb window, which the step's LiDAR and collision test read
-    block = st["segment_block"].gather(1, st["window"].flatten(1)).view_as(st["window"])
+    block = st["segment_block"].gather(1, st["window"].flatten(1).long()).view_as(st["window"])
     assert not (st["window_valid"] & (block < first.unsqueeze(-1))).any()
     assert (st["window_valid"] & (block == first.unsqueeze(-1))).any()
     env.set_difficulty(1.5)

@@ -55,8 +55,8 @@ def test_windows_hold_every_curb_the_lidar_reaches_from_near_their_stretch(episo
     cfg, state = episodes
     reach = cfg.lidar.max_range + cfg.task.scene.window_slack
     points = state["route_points"].double().numpy()
-    segments = state["net_segments"].double().numpy()
-    mask = state["net_mask"].numpy()
+    segments = state["segments"].double().numpy()
+    mask = state["mask"].numpy()
     window, valid = state["window"].numpy(), state["window_valid"].numpy()
     n, chunks, _ = window.shape
     R = points.shape[1]
@@ -85,5 +85,5 @@ def test_windows_are_smaller_than_the_chain(episodes):
     curbs (a window of every curb would pass the test above)."""
     _, state = episodes
     per_window = state["window_valid"].sum(-1).float().mean()
-    per_chain = state["net_mask"].sum(-1).float().mean()
+    per_chain = state["mask"].sum(-1).float().mean()
     assert per_window < 0.75 * per_chain

@@ -284,7 +284,7 @@ class Chain:
     route_points: Tensor  # [n, R, 2] resampled route [m]
     route_cum: Tensor  # [n, R] its arc length [m]
     turn: Tensor  # [n, K] heading change at each junction [rad] (links: 0)
-    window: Tensor  # [n, chunks, window_size] long: curb slots each route stretch may reach
+    window: Tensor  # [n, chunks, window_size] int32: curb slots each route stretch may reach
     window_valid: Tensor  # [n, chunks, window_size] bool
     start_options: Tensor  # [n, J + 1, 3] start pose on link L_i (only those in use checked)
     level_starts: Tensor  # [n, V, 3] the start of each curriculum level (level_start)
@@ -467,6 +467,11 @@ def chunk_pieces(points: int, chunks: int) -> int:
     return max(1, -(-(points - 1) // chunks))
 
 
+#: Integer type of the curb windows: half the bytes of int64 for a restart to copy, and an index
+#: the compiled step gathers with as it is (from int16 it would convert it for every access).
+WINDOW_DTYPE = torch.int32
+
+
 #: Rows per block of :func:`route_windows`'s curb test.
 WINDOW_ROWS = 32
 
@@ -493,7 +498,8 @@ def route_windows(
         size: slots per window (at most ``E``: then every curb fits).
 
     Returns:
-        ``(window [n, chunks, size] long, valid [n, chunks, size], overflow [n])``: the curb
+        ``(window [n, chunks, size]`` (:data:`WINDOW_DTYPE`), ``valid [n, chunks, size],
+        overflow [n])``: the curb
         slots of each window (valid first), which are real, and where a window would need more
         than ``size``.
     """
@@ -509,7 +515,7 @@ def route_windows(
     order = torch.sort((~mask).to(torch.uint8), dim=-1, stable=True).indices
     count_valid = mask.sum(-1)
     size = min(size, E)  # a window of every curb at most
-    window = torch.zeros(n, chunks, size + 1, dtype=torch.long, device=dev)
+    window = torch.zeros(n, chunks, size + 1, dtype=WINDOW_DTYPE, device=dev)
     count = torch.empty(n, chunks, dtype=torch.long, device=dev)
     # blocks of rows: each block's [rows, chunks, V] pair tables stay in cache
     starts = range(0, n, WINDOW_ROWS)
@@ -532,7 +538,7 @@ def route_windows(
         # each near curb's slot to its rank among the near ones (in slot order), the rest and
         # any beyond the window's size to a spare column that is dropped
         rank = torch.where(near, ranks - 1, size).clamp_max(size)
-        window[rows].scatter_(2, rank, slots.unsqueeze(1).expand(b, chunks, V))
+        window[rows].scatter_(2, rank, slots.to(window.dtype).unsqueeze(1).expand(b, chunks, V))
     valid = torch.arange(size, device=dev) < count.unsqueeze(-1)
     return window[..., :size], valid, (count > size).any(-1)
 

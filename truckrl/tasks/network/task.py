@@ -63,6 +63,7 @@ from truckrl.tasks.network.scene import (
     INFO_KEYS,
     STRAIGHT_TURN,
     TRAFFIC_FIELDS,
+    WINDOW_DTYPE,
     CurriculumConfig,
     NetworkSceneConfig,
     RouteConfig,
@@ -98,13 +99,14 @@ ROUTE_KEYS: tuple[str, ...] = (
 #: Key that marks a state dict whose ``segments`` and ``mask`` already hold the scene the
 #: collision test and the LiDAR read (:meth:`NetworkTask.sensed`); never a state entry.
 SENSED = "sensed"
-#: Curb window state keys: the chain's curbs ``net_segments [N, E, 4]`` and ``net_mask [N, E]``
-#: (the scene's, in their slots) and each route stretch's window ``window [N, C, W]`` (curb
-#: slots) and ``window_valid [N, C, W]``; the step's LiDAR and collision read the window of the
-#: truck's stretch instead of every curb of the chain. Invariant: a valid slot holds a curb of
-#: ``net_mask`` (:meth:`NetworkTask.on_reset` folds the curriculum's cut into both), so the step
-#: reads one mask instead of gathering ``net_mask`` through the window for every LiDAR beam.
-WINDOW_KEYS: tuple[str, ...] = ("net_segments", "net_mask", "window", "window_valid")
+#: Curb window state keys: each route stretch's window ``window [N, C, W]`` (int32 slots of the
+#: scene's ``segments``: :data:`~truckrl.tasks.network.scene.WINDOW_DTYPE`) and
+#: ``window_valid [N, C, W]``; the step's LiDAR and collision read the window of the truck's
+#: stretch instead of every curb of the chain (the env hands the step the scene's slots as they
+#: are: :attr:`NetworkTask.compact_scene`). Invariant: a valid slot holds a curb of ``mask``
+#: (:meth:`NetworkTask.on_reset` folds the curriculum's cut into both), so the step reads one
+#: mask instead of gathering ``mask`` through the window for every LiDAR beam.
+WINDOW_KEYS: tuple[str, ...] = ("window", "window_valid")
 
 
 def _default(cls: type, name: str) -> Any:
@@ -165,6 +167,8 @@ class NetworkTask(PoseGoal, Task):
     #: ops are shared by all its episodes: the draw is the reset's largest cost, and a bigger
     #: batch costs less per episode (docs/networks.md, "Speed")
     episode_pool = 1024
+    #: the step senses its curb windows, which index the scene's slots (WINDOW_KEYS)
+    compact_scene = False
     extra_state_keys = (*TRAFFIC_KEYS, *ROUTE_KEYS, *WINDOW_KEYS)
 
     @classmethod
@@ -277,8 +281,6 @@ class NetworkTask(PoseGoal, Task):
             state[f"tr_{f}"] = getattr(tr, f)
         state["route_points"] = ch.route_points
         state["route_cum"] = ch.route_cum
-        state["net_segments"] = net.segments
-        state["net_mask"] = net.mask.clone()
         state["window"] = ch.window
         state["window_valid"] = ch.window_valid
         # the curriculum's inputs (read by on_reset only)
@@ -307,9 +309,8 @@ class NetworkTask(PoseGoal, Task):
                 state[k] = v
         if "window" not in keys:  # one window: every curb
             e = state["segments"].shape[1]
-            state["net_segments"] = state["segments"]
-            state["net_mask"] = state["mask"].clone()
-            state["window"] = torch.arange(e, device=dev).expand(n, 1, e).clone()
+            slots = torch.arange(e, dtype=WINDOW_DTYPE, device=dev)
+            state["window"] = slots.expand(n, 1, e).clone()
             state["window_valid"] = state["mask"].unsqueeze(1).clone()
         if "route_points" not in keys:
             f = torch.linspace(0.0, 1.0, self.cfg.task.route.points, device=dev).view(1, -1, 1)
@@ -341,9 +342,8 @@ class NetworkTask(PoseGoal, Task):
         start = state["level_starts"][rows, level]
         state["pose"] = torch.cat((start, torch.zeros_like(start[:, :1])), -1)
         state["mask"] = state["mask"] & (state["segment_block"] >= first_block.unsqueeze(-1))
-        state["net_mask"] = state["net_mask"] & state["mask"]
         window = state["window"]
-        cut = state["net_mask"].gather(1, window.flatten(1)).view_as(window)
+        cut = state["mask"].gather(1, window.flatten(1).long()).view_as(window)
         state["window_valid"] = state["window_valid"] & cut
         K = state["block_type"].shape[1]
         lanes_per_block = state["tr_lanes"].shape[1] // K
@@ -394,8 +394,8 @@ class NetworkTask(PoseGoal, Task):
         n, _, w = window.shape
         at = s["route_chunk"].view(n, 1, 1).expand(n, 1, w)
         idx = window.gather(1, at).squeeze(1)  # [n, w] curb slots
-        curbs = s["net_segments"].gather(1, idx.unsqueeze(-1).expand(n, w, 4))
-        curb_mask = valid.gather(1, at).squeeze(1)  # net_mask folded in (WINDOW_KEYS)
+        curbs = s["segments"].gather(1, idx.unsqueeze(-1).expand(n, w, 4))
+        curb_mask = valid.gather(1, at).squeeze(1)  # mask folded in (WINDOW_KEYS)
         if TRAFFIC_KEYS[0] in s:  # else no vehicle anywhere (idle_keys): the curbs alone
             seg, mask = traffic_segments(traffic_of(s))
             curbs, curb_mask = torch.cat((curbs, seg), 1), torch.cat((curb_mask, mask), 1)

@@ -158,7 +158,7 @@ def collision_sites(states, pose):
     from truckrl.sim.collision import touching
 
     params = {k: states["params", k] for k in states["params"].keys()}
-    tractor, trailer = touching(pose, params, states["net_segments"], states["net_mask"])
+    tractor, trailer = touching(pose, params, states["segments"], states["mask"])
     hit = tractor | trailer
     first = hit.to(torch.uint8).argmax(-1, keepdim=True)
     block = torch.where(hit.any(-1), states["segment_block"].gather(1, first).squeeze(1), -1)
