@@ -276,10 +276,12 @@ def lane_tables(net: Network) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
     )
     usable = net.lane_mask & ~ring
     end = torch.gather(lanes, 2, (pieces + 1).view(*pieces.shape, 1, 1).expand(-1, -1, 1, 2))
-    # [n, P (end), P (start)], per coordinate: contiguous pair tables, the same values as one
-    # [..., 2] table read through strided views at a fraction of the cost
-    gap_x = end[:, :, 0, 0].unsqueeze(2) - lanes[:, :, 0, 0].unsqueeze(1)
-    gap_y = end[:, :, 0, 1].unsqueeze(2) - lanes[:, :, 0, 1].unsqueeze(1)
+    # [n, P (end), P (start)], per coordinate: contiguous pair tables from contiguous ends, the
+    # same values as one [..., 2] table read through strided views at a fraction of the cost
+    end_x, end_y = end[:, :, 0].movedim(-1, 0).contiguous()
+    start_x, start_y = lanes[:, :, 0].movedim(-1, 0).contiguous()
+    gap_x = end_x.unsqueeze(2) - start_x.unsqueeze(1)
+    gap_y = end_y.unsqueeze(2) - start_y.unsqueeze(1)
     near = gap_x * gap_x + gap_y * gap_y < 1e-4  # within 1 cm (squared: no root per pair)
     near = near & usable.unsqueeze(1) & usable.unsqueeze(2)
     near = near & ~torch.eye(lanes.shape[1], dtype=torch.bool, device=lanes.device)
