@@ -326,8 +326,10 @@ def test_pulled_latches_once_level_with_the_pull_point():
 def test_reverse_path_ends_short_of_the_end_wall():
     """The start curriculum's reverse path ends (sigma = 1) with the truck straight on the branch
     axis, facing out, its rear-centre ``branch_end_gap`` (0.5-2 m) plus the skew of its corners
-    short of the branch end wall (branch axis and wall computed here from the scene metadata)."""
-    env = TruckEnv(num_envs=400, config=UTURN, seed=7)
+    short of the branch end wall (branch axis and wall computed here from the scene metadata),
+    over 2,000 scenes (branch angles across their range)."""
+    n = 2000
+    env = TruckEnv(num_envs=n, config=UTURN, seed=7)
     env.reset()
     s = env.get_state()
     info = s["route"]
@@ -346,7 +348,7 @@ def test_reverse_path_ends_short_of_the_end_wall():
     mouth = torch.stack((info["mouth_x"], info["mouth_y"]), -1)
     mouth = mouth + 0.5 * info["road_width"][:, None] * normal
     path = reverse_path(info, s["params"], env.task.cfg.task.start)
-    end = path.pose(torch.ones(400))[:, :2]  # tractor rear axle at the path's end
+    end = path.pose(torch.ones(n))[:, :2]  # tractor rear axle at the path's end
     rel = end - mouth
     assert (rel[:, 0] * axis[:, 1] - rel[:, 1] * axis[:, 0]).abs().max() < TOL
     _, rear, half_w = truck_extents({k: s["params"][k] for k in s["params"].keys()})

@@ -202,8 +202,10 @@ def reverse_path(
     x_arc = x_end - radius * torch.sin(turn)
     back = (x0 - x_arc).clamp_min(0.0)
     p0 = torch.stack((torch.maximum(x0, x_arc), torch.zeros_like(x0)), -1)
-    # end: the trailer's rear corners branch_end_gap short of the end wall (skewed by pi/2 - a)
-    skew = half_w * (cos_a / sin_a).abs()
+    # end: the trailer's rear corners branch_end_gap short of the end wall, which runs along
+    # the road: on the axis at angle a the deeper corner lies half_w |cos a| deeper (across
+    # the road) than the rear's centre
+    skew = half_w * cos_a.abs()
     depth_axle = (
         info["branch_depth"] - uniform(cur.branch_end_gap, place) - skew
     ) / sin_a - overhang
