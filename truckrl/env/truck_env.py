@@ -6,8 +6,9 @@ thin adapter: what happens in a step is :meth:`truckrl.tasks.base.Task.transitio
 the specs (keys, shapes and the observation table: :mod:`truckrl.env.spec`), partial resets,
 seeding and the curriculum difficulty. Fresh episodes come from an
 :class:`~truckrl.env.pool.EpisodePool`, the step reads the scene through a
-:class:`~truckrl.env.compaction.CompactScene` (where :attr:`Task.compact_scene`), and
-``step_and_maybe_reset`` restarts trucks in place (:mod:`truckrl.env.autoreset`). Stack several with
+:class:`~truckrl.env.compaction.CompactScene` (where
+:attr:`~truckrl.tasks.base.Task.compact_scene`), and ``step_and_maybe_reset`` restarts trucks
+in place (:mod:`truckrl.env.autoreset`). Stack several with
 ``ParallelEnv(W, lambda: TruckEnv(num_envs=n))`` for a ``[W, n]`` batch.
 
 State: :meth:`TruckEnv.get_state` returns a copy of the full state (layout in
