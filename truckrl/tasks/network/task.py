@@ -228,9 +228,10 @@ class NetworkTask(PoseGoal, Task):
         """A refill of episodes that start at the curriculum level ``key``: ``m`` trucks (those
         ``carry`` hands over first, then new ones; every carried one where they are more) each
         get one chain, and the episodes that pass the feasibility rule are kept; the trucks of
-        the others go to the next refill, which draws them a new chain. Each truck so still gets the first chain of its own that
-        passes, as in :meth:`sample`, whose further redraw rounds cost about as much as the
-        first for a tenth of the rows; only where fewer than half pass do the rounds go on.
+        the others go to the next refill, which draws them a new chain. Each truck so still
+        gets the first chain of its own that passes, as in :meth:`sample`, whose further redraw
+        rounds cost about as much as the first for a tenth of the rows; only where fewer than
+        half pass do the rounds go on.
 
         Only level ``key``'s start is searched (the other levels get their link's start
         option, which is not their start), and no vehicle is placed where that level keeps
@@ -343,7 +344,7 @@ class NetworkTask(PoseGoal, Task):
         state["pose"] = torch.cat((start, torch.zeros_like(start[:, :1])), -1)
         state["mask"] = state["mask"] & (state["segment_block"] >= first_block.unsqueeze(-1))
         window = state["window"]
-        cut = state["mask"].gather(1, window.flatten(1).long()).view_as(window)
+        cut = state["mask"].gather(1, window.flatten(1)).view_as(window)
         state["window_valid"] = state["window_valid"] & cut
         K = state["block_type"].shape[1]
         lanes_per_block = state["tr_lanes"].shape[1] // K
